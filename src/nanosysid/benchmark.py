@@ -1,0 +1,183 @@
+"""The benchmark: load flights, cut windows, score any predictor with the paper's protocol.
+
+A predictor is ``predict(y0 (B, 13), u (B, H, 4)) -> (B, H, 13)`` (numpy or torch). For
+every admissible start ``t in {0, ..., T-H-1}`` of a flight it receives ``y_t`` and
+``u_{t..t+H-1}`` and predicts ``y_{t+1..t+H}`` open loop. Each flight gives ``T - H``
+windows.
+
+Example::
+
+    from nanosysid import benchmark
+    bench = benchmark.load("path/to/data")        # train/ and test/ flight CSVs
+    scores = benchmark.evaluate(benchmark.model("physics"), bench.test, horizon=50)
+    scores.mae["p"][9], scores.simerr["v"]
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+import numpy as np
+
+from nanosysid import metrics
+from nanosysid.dataio import DataError, Flight, read_flight_csv
+
+__all__ = ["Benchmark", "DataError", "Flight", "Scores", "evaluate", "load", "model", "score", "windows"]
+
+Predictor = Callable[[Any, Any], Any]
+
+
+@dataclass
+class Benchmark:
+    """Training and test flights of one dataset folder."""
+
+    train: list[Flight]
+    test: list[Flight]
+    root: Path | None = None
+
+
+@dataclass
+class Scores:
+    """Multi-horizon scores.
+
+    Attributes:
+        mae: Mean absolute error per horizon, ``(H,)`` per quantity: ``p`` (m),
+            ``v`` (m/s), ``R`` (rad, geodesic), ``w`` (rad/s).
+        n_windows: Number of windows scored.
+        per_flight: Scores of each flight, by flight name, when scored over flights.
+    """
+
+    mae: dict[str, np.ndarray]
+    n_windows: int
+    per_flight: dict[str, "Scores"] = field(default_factory=dict)
+
+    @property
+    def simerr(self) -> dict[str, float]:
+        """Simulation error: sum of the MAE over h = 1..H."""
+        return {k: float(v.sum()) for k, v in self.mae.items()}
+
+    @property
+    def horizon(self) -> int:
+        return len(self.mae["p"])
+
+    def at(self, h: int) -> dict[str, float]:
+        """MAE at horizon ``h`` (1-based)."""
+        return {k: float(v[h - 1]) for k, v in self.mae.items()}
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: MAE curves, SimErr, and the same for each flight."""
+        d: dict[str, Any] = {
+            "n_windows": self.n_windows,
+            "horizon": self.horizon,
+            "simerr": self.simerr,
+            "mae": {k: [float(x) for x in v] for k, v in self.mae.items()},
+        }
+        if self.per_flight:
+            d["per_flight"] = {n: s.to_dict() for n, s in self.per_flight.items()}
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "Scores":
+        return cls(
+            mae={k: np.asarray(v, dtype=np.float64) for k, v in d["mae"].items()},
+            n_windows=int(d["n_windows"]),
+            per_flight={n: cls.from_dict(s) for n, s in d.get("per_flight", {}).items()},
+        )
+
+
+def load(path: str | os.PathLike, *, horizon: int = 50) -> Benchmark:
+    """Load a dataset folder with ``train/`` and ``test/`` flight CSVs in the published schema.
+
+    Every flight is validated (see :func:`nanosysid.dataio.read_flight_csv`) and must have
+    at least ``horizon + 1`` rows. Flights are sorted by name.
+
+    Raises:
+        DataError: a missing folder, an empty test set, or a flight that breaks the schema.
+    """
+    root = Path(path)
+    parts = {}
+    for part in ("train", "test"):
+        d = root / part
+        if not d.is_dir():
+            raise DataError(f"{d}: no such folder (a benchmark folder holds train/ and test/)")
+        parts[part] = [read_flight_csv(f, min_rows=horizon + 1) for f in sorted(d.glob("*.csv"))]
+    if not parts["test"]:
+        raise DataError(f"{root / 'test'}: no flight CSV files")
+    return Benchmark(train=parts["train"], test=parts["test"], root=root)
+
+
+def windows(flight: Flight, horizon: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """All ``T - H`` evaluation windows of a flight, as strided views (no copy).
+
+    Returns:
+        ``y0 (N, 13)``, ``u (N, H, 4)`` and the targets ``y (N, H, 13)``.
+    """
+    T = len(flight)
+    n = T - horizon
+    if n < 1:
+        raise DataError(f"flight {flight.name}: {T} samples, fewer than horizon + 1 = {horizon + 1}")
+    win = np.lib.stride_tricks.sliding_window_view
+    u = win(flight.u, horizon, axis=0)[:n].transpose(0, 2, 1)  # (N, H, 4)
+    y = win(flight.y[1:], horizon, axis=0)[:n].transpose(0, 2, 1)  # (N, H, 13)
+    return flight.y[:n], u, y
+
+
+def _to_numpy(a) -> np.ndarray:
+    if hasattr(a, "detach"):
+        a = a.detach().cpu().numpy()
+    return np.asarray(a, dtype=np.float64)
+
+
+def _score_flight(predict: Predictor, flight: Flight, horizon: int, batch_size: int) -> Scores:
+    y0, u, y = windows(flight, horizon)
+    n = len(y0)
+    sums = {k: np.zeros(horizon) for k in metrics.QUANTITIES}
+    for s in range(0, n, batch_size):
+        b = slice(s, min(s + batch_size, n))
+        pred = _to_numpy(predict(y0[b], u[b]))
+        if pred.shape != (b.stop - b.start, horizon, 13):
+            raise ValueError(
+                f"predictor returned shape {pred.shape} on flight {flight.name}; "
+                f"expected {(b.stop - b.start, horizon, 13)}"
+            )
+        for k, e in metrics.errors(y[b], pred).items():
+            sums[k] += e.sum(axis=0)
+    return Scores(mae={k: v / n for k, v in sums.items()}, n_windows=n)
+
+
+def evaluate(
+    predict: Predictor, flights: Sequence[Flight], *, horizon: int = 50, batch_size: int = 8192
+) -> Scores:
+    """Score a predictor on every window of every flight.
+
+    The top-level MAE is the mean of the per-flight MAE curves, as the paper averages
+    over the three Melon runs; ``per_flight`` holds each flight's own scores.
+    """
+    if not flights:
+        raise ValueError("evaluate: no flights given")
+    per = {f.name: _score_flight(predict, f, horizon, batch_size) for f in flights}
+    mae = {k: np.mean([s.mae[k] for s in per.values()], axis=0) for k in metrics.QUANTITIES}
+    return Scores(mae=mae, n_windows=sum(s.n_windows for s in per.values()), per_flight=per)
+
+
+def score(y_true, y_pred) -> Scores:
+    """Scores of predictions ``(N, H, 13)`` against truth ``(N, H, 13)``, pooled over windows."""
+    y_true, y_pred = _to_numpy(y_true), _to_numpy(y_pred)
+    if y_true.ndim != 3:
+        raise ValueError(f"expected (N, H, 13) arrays, got {y_true.shape}")
+    errs = metrics.errors(y_true, y_pred)
+    return Scores(mae={k: e.mean(axis=0) for k, e in errs.items()}, n_windows=len(y_true))
+
+
+def model(name: str, **options: Any) -> Predictor:
+    """A built-in predictor by name: ``naive``, ``physics`` or ``physics_full``.
+
+    Options are the model's config keys (for the physics models: ``vehicle``, a mapping
+    or :class:`~nanosysid.vehicle.Vehicle`; ``dt``; ``substeps``).
+    """
+    from nanosysid.models import build_predictor
+
+    return build_predictor(name, **options)

@@ -1,0 +1,223 @@
+"""Flights in the published CSV schema: reading with validation, and atomic writing.
+
+The schema is the benchmark dataset's: one CSV per flight, named
+``<trajectory>_<date>_run<k>.csv``, with columns ``t`` (s), the rotor speeds
+``m1_rads..m4_rads`` (rad/s), the outputs ``x y z`` (m), ``vx vy vz`` (m/s, world),
+``qx qy qz qw`` (body to world), ``wx wy wz`` (rad/s, body) and the accelerometer
+``ax_body ay_body az_body`` (m/s^2, specific force in the body frame). Further columns
+are kept as extras.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import pandas as pd
+
+__all__ = [
+    "INPUT_COLUMNS",
+    "OUTPUT_COLUMNS",
+    "ACCEL_COLUMNS",
+    "SCHEMA",
+    "DataError",
+    "Flight",
+    "parse_flight_name",
+    "read_flight_csv",
+    "write_flight_csv",
+    "atomic_file",
+    "atomic_dir",
+]
+
+INPUT_COLUMNS = ["m1_rads", "m2_rads", "m3_rads", "m4_rads"]
+OUTPUT_COLUMNS = ["x", "y", "z", "vx", "vy", "vz", "qx", "qy", "qz", "qw", "wx", "wy", "wz"]
+ACCEL_COLUMNS = ["ax_body", "ay_body", "az_body"]
+SCHEMA = ["t", *INPUT_COLUMNS, *OUTPUT_COLUMNS, *ACCEL_COLUMNS]
+QUAT_COLUMNS = ["qx", "qy", "qz", "qw"]
+QUAT_NORM_TOL = 1e-3
+
+_NAME = re.compile(r"^(?P<trajectory>[A-Za-z][A-Za-z0-9-]*)_(?P<date>[^_]+)_run(?P<run>\d+)$")
+
+
+class DataError(ValueError):
+    """A data file that does not meet the schema; the message names file, field and row."""
+
+
+@dataclass
+class Flight:
+    """One flight: time, inputs, outputs and extra columns, all sampled on the same grid.
+
+    Attributes:
+        name: File stem, ``<trajectory>_<date>_run<k>``.
+        t: Time stamps ``(T,)`` in s.
+        u: Rotor speeds ``(T, 4)`` in rad/s.
+        y: Outputs ``(T, 13)``: position, velocity, quaternion xyzw, body rates.
+        extra: Other columns by name, each ``(T,)`` (accelerometer, truth signals, ...).
+    """
+
+    name: str
+    t: np.ndarray
+    u: np.ndarray
+    y: np.ndarray
+    extra: dict[str, np.ndarray] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        T = len(self.t)
+        if self.u.shape != (T, 4) or self.y.shape != (T, 13):
+            raise ValueError(
+                f"flight {self.name}: shapes t {self.t.shape}, u {self.u.shape}, y {self.y.shape};"
+                f" expected ({T},), ({T}, 4), ({T}, 13)"
+            )
+
+    @property
+    def trajectory(self) -> str:
+        """Trajectory name (``square``, ``random``, ``chirp``, ``melon``), lower case."""
+        return parse_flight_name(self.name)[0]
+
+    @property
+    def run(self) -> int:
+        """Run number k of ``..._run<k>``."""
+        return parse_flight_name(self.name)[1]
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def to_frame(self) -> pd.DataFrame:
+        """The flight as a table in the published column order, extras last."""
+        cols: dict[str, np.ndarray] = {"t": self.t}
+        cols.update(zip(INPUT_COLUMNS, self.u.T))
+        cols.update(zip(OUTPUT_COLUMNS, self.y.T))
+        for k in ACCEL_COLUMNS:
+            if k in self.extra:
+                cols[k] = self.extra[k]
+        cols.update({k: v for k, v in self.extra.items() if k not in cols})
+        return pd.DataFrame(cols)
+
+
+def parse_flight_name(name: str) -> tuple[str, int]:
+    """``(trajectory, run)`` from ``<trajectory>_<date>_run<k>``; ValueError otherwise."""
+    m = _NAME.match(Path(name).stem if name.endswith(".csv") else name)
+    if m is None:
+        raise ValueError(f"flight name {name!r} is not of the form <trajectory>_<date>_run<k>")
+    return m["trajectory"].lower(), int(m["run"])
+
+
+def _where(path: Path, column: str, row: int) -> str:
+    # row counts data rows from 0; the file line adds the header and 1-based numbering
+    return f"{path}: column '{column}', row {row} (line {row + 2})"
+
+
+def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
+    """Read and validate one flight CSV.
+
+    Raises:
+        DataError: missing column, non-numeric value, NaN, non-increasing ``t``, a
+            quaternion whose norm is off 1 by more than 1e-3, or fewer than ``min_rows``
+            rows. The message names the file, the column and the row.
+    """
+    path = Path(path)
+    try:
+        df = pd.read_csv(path, dtype=str, keep_default_na=False)
+    except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as e:
+        raise DataError(f"{path}: not a readable CSV file ({e})") from None
+    missing = [c for c in SCHEMA if c not in df.columns]
+    if missing:
+        raise DataError(
+            f"{path}: missing column(s) {', '.join(repr(c) for c in missing)}"
+            f" (the published schema is: {', '.join(SCHEMA)})"
+        )
+    values: dict[str, np.ndarray] = {}
+    for col in df.columns:
+        raw = df[col].str.strip()
+        num = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
+        bad = np.isnan(num)
+        if bad.any():
+            i = int(np.argmax(bad))
+            text = raw.iloc[i]
+            if text.lower() in ("", "nan", "na", "null", "none"):
+                raise DataError(f"{_where(path, col, i)}: missing value (NaN)")
+            raise DataError(f"{_where(path, col, i)}: non-numeric value {text!r}")
+        inf = ~np.isfinite(num)
+        if inf.any():
+            i = int(np.argmax(inf))
+            raise DataError(f"{_where(path, col, i)}: infinite value {raw.iloc[i]!r}")
+        values[col] = num
+    n = len(df)
+    if n < min_rows:
+        raise DataError(f"{path}: {n} rows, fewer than the {min_rows} one window needs")
+    t = values["t"]
+    step_bad = np.diff(t) <= 0
+    if step_bad.any():
+        i = int(np.argmax(step_bad)) + 1
+        raise DataError(f"{_where(path, 't', i)}: time does not increase ({t[i]!r} after {t[i - 1]!r})")
+    q = np.stack([values[c] for c in QUAT_COLUMNS], axis=1)
+    norm = np.linalg.norm(q, axis=1)
+    off = np.abs(norm - 1) > QUAT_NORM_TOL
+    if off.any():
+        i = int(np.argmax(off))
+        raise DataError(
+            f"{_where(path, 'qx/qy/qz/qw', i)}: quaternion norm {norm[i]:.6g} is not 1"
+            f" (tolerance {QUAT_NORM_TOL:g})"
+        )
+    return Flight(
+        name=path.stem,
+        t=t,
+        u=np.stack([values[c] for c in INPUT_COLUMNS], axis=1),
+        y=np.stack([values[c] for c in OUTPUT_COLUMNS], axis=1),
+        extra={c: values[c] for c in df.columns if c not in ("t", *INPUT_COLUMNS, *OUTPUT_COLUMNS)},
+    )
+
+
+def write_flight_csv(flight: Flight, path: str | os.PathLike) -> None:
+    """Write a flight in the published schema (atomically; same data, same bytes)."""
+    df = flight.to_frame()
+    missing = [c for c in SCHEMA if c not in df.columns]
+    if missing:
+        raise ValueError(f"flight {flight.name}: cannot write, no values for {missing}")
+    with atomic_file(path) as tmp:
+        df.to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
+
+
+@contextlib.contextmanager
+def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary directory beside ``path``; swap it in for ``path`` only on success.
+
+    The previous contents of ``path`` stay in place until the new directory is complete.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    try:
+        yield tmp
+        if path.exists():
+            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
+            os.replace(path, old / "x")
+            os.replace(tmp, path)
+            shutil.rmtree(old)
+        else:
+            os.replace(tmp, path)
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp)

@@ -1,0 +1,132 @@
+"""Rigid-body quadrotor dynamics of the benchmark paper, as pure batched functions.
+
+State ``x = [p, v, q, w]`` of shape ``(..., 13)``:
+
+- ``p`` (m): position of the centre of mass in the world frame (z up);
+- ``v`` (m/s): velocity in the world frame;
+- ``q``: unit quaternion ``xyzw``, body to world (Hamilton);
+- ``w`` (rad/s): angular velocity in the body frame.
+
+Input ``u`` of shape ``(..., 4)``: rotor speeds ``Omega_1..4`` (rad/s), rotors numbered as in
+the paper's 'x' layout (M1 front-right, M2 rear-right, M3 rear-left, M4 front-left).
+
+Physical parameters are keyword-only arguments, so a partially applied function
+(``functools.partial``) is a model of one vehicle.
+"""
+
+from __future__ import annotations
+
+from typing import Callable
+
+import torch
+from torch import Tensor
+
+from nanosysid import so3
+
+__all__ = [
+    "GRAVITY",
+    "mixer_matrix",
+    "rotor_wrench",
+    "quad_dynamics",
+    "rk4_step",
+    "split_state",
+]
+
+GRAVITY = 9.81  # m/s^2, the paper's value
+
+
+def split_state(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
+    """``(p, v, q, w)`` views of a ``(..., 13)`` state."""
+    return x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13]
+
+
+def mixer_matrix(*, k_f: float, k_m: float, arm: float, dtype=torch.float64, device=None) -> Tensor:
+    """The paper's 'x' mixing matrix (equation thrust_torque_mapping), shape ``(4, 4)``.
+
+    Maps squared rotor speeds (rad^2/s^2) to ``[T (N), tau_x, tau_y, tau_z (N m)]``.
+
+    Args:
+        k_f: Thrust coefficient (N s^2/rad^2).
+        k_m: Moment coefficient (N m s^2/rad^2).
+        arm: Effective lever arm L (m), the distance from the centre of mass to each rotor
+            projected on the body x or y axis.
+    """
+    kl = k_f * arm
+    return torch.tensor(
+        [
+            [k_f, k_f, k_f, k_f],
+            [-kl, -kl, kl, kl],
+            [-kl, kl, kl, -kl],
+            [-k_m, k_m, -k_m, k_m],
+        ],
+        dtype=dtype,
+        device=device,
+    )
+
+
+def rotor_wrench(u: Tensor, *, k_f: float, k_m: float, arm: float) -> tuple[Tensor, Tensor]:
+    """Collective thrust ``T (...,)`` in N and body torque ``tau (..., 3)`` in N m."""
+    M = mixer_matrix(k_f=k_f, k_m=k_m, arm=arm, dtype=u.dtype, device=u.device)
+    wrench = (u * u) @ M.T  # (..., 4)
+    return wrench[..., 0], wrench[..., 1:]
+
+
+def quad_dynamics(
+    x: Tensor,
+    u: Tensor,
+    *,
+    mass: float,
+    inertia: tuple[float, float, float],
+    k_f: float,
+    k_m: float,
+    arm: float,
+    gravity: float = GRAVITY,
+    angular_dynamics: bool = True,
+    force_body: Tensor | None = None,
+    torque_body: Tensor | None = None,
+) -> Tensor:
+    """Time derivative of the state, the paper's equation (quad_dynamics).
+
+    Args:
+        x: State ``(..., 13)``, see the module docstring.
+        u: Rotor speeds ``(..., 4)`` in rad/s.
+        mass: Vehicle mass (kg).
+        inertia: Diagonal of the body-frame inertia matrix J (kg m^2).
+        k_f: Thrust coefficient (N s^2/rad^2).
+        k_m: Moment coefficient (N m s^2/rad^2).
+        arm: Effective lever arm L (m).
+        gravity: Gravitational acceleration (m/s^2), acting along -z of the world frame.
+        angular_dynamics: If False, ``dw/dt = 0``: the paper's nominal physics baseline,
+            which keeps the measured angular velocity constant over the step.
+        force_body: Extra force ``(..., 3)`` in N, body frame, added to the rotor thrust.
+        torque_body: Extra torque ``(..., 3)`` in N m, body frame, added to the rotor torque.
+
+    Returns:
+        ``dx/dt`` of shape ``(..., 13)``.
+    """
+    _, v, q, w = split_state(x)
+    thrust, tau = rotor_wrench(u, k_f=k_f, k_m=k_m, arm=arm)
+    f_b = torch.cat((torch.zeros_like(v[..., :2]), thrust.unsqueeze(-1)), dim=-1)  # [0, 0, T]
+    if force_body is not None:
+        f_b = f_b + force_body
+    g = torch.tensor([0.0, 0.0, -gravity], dtype=x.dtype, device=x.device)
+    v_dot = so3.quat_rotate(q, f_b) / mass + g
+    w_quat = torch.cat((w, torch.zeros_like(w[..., :1])), dim=-1)
+    q_dot = 0.5 * so3.quat_mul(q, w_quat)
+    if angular_dynamics:
+        J = torch.tensor(inertia, dtype=x.dtype, device=x.device)
+        if torque_body is not None:
+            tau = tau + torque_body
+        w_dot = (tau - torch.linalg.cross(w, J * w, dim=-1)) / J
+    else:
+        w_dot = torch.zeros_like(w)
+    return torch.cat((v, v_dot, q_dot, w_dot), dim=-1)
+
+
+def rk4_step(f: Callable[[Tensor, Tensor], Tensor], x: Tensor, u: Tensor, dt: float) -> Tensor:
+    """One classical Runge-Kutta step of ``dx/dt = f(x, u)`` with ``u`` held over the step."""
+    k1 = f(x, u)
+    k2 = f(x + 0.5 * dt * k1, u)
+    k3 = f(x + 0.5 * dt * k2, u)
+    k4 = f(x + dt * k3, u)
+    return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)

@@ -1,0 +1,48 @@
+"""The evaluate stage's work: one model, the test flights, metrics and a table on disk."""
+
+from __future__ import annotations
+
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
+from omegaconf import DictConfig, OmegaConf
+
+from nanosysid import benchmark, report
+from nanosysid.config import ConfigError
+from nanosysid.dataio import atomic_file
+
+__all__ = ["evaluate_model", "metrics_payload"]
+
+log = logging.getLogger(__name__)
+
+
+def metrics_payload(name: str, scores: benchmark.Scores, table_horizons: list[int]) -> dict[str, Any]:
+    """The content of ``metrics.json``: headline figures first, then curves and flights."""
+    at = {f"h{h}": scores.at(h) for h in table_horizons}
+    return {"model": name, "simerr": scores.simerr, "at": at, **{k: v for k, v in scores.to_dict().items() if k != "simerr"}}
+
+
+def evaluate_model(cfg: DictConfig, name: str) -> benchmark.Scores:
+    """Score ``cfg.models[name]`` on the test flights of ``cfg.paths.split``.
+
+    Writes ``<paths.eval>/<name>/metrics.json`` and ``table.md``.
+    """
+    if name not in cfg.models:
+        raise ConfigError(f"models.{name}: no such model in the config (known: {', '.join(cfg.models)})")
+    options = OmegaConf.to_container(cfg.models[name], resolve=True)
+    kind = options.pop("kind")
+    horizon = int(cfg.eval.horizon)
+    bench = benchmark.load(cfg.paths.split, horizon=horizon)
+    predict = benchmark.model(kind, **options)
+    scores = benchmark.evaluate(predict, bench.test, horizon=horizon, batch_size=int(cfg.eval.batch_size))
+    out = Path(cfg.paths.eval) / name
+    payload = metrics_payload(name, scores, list(cfg.eval.table_horizons))
+    with atomic_file(out / "metrics.json") as tmp:
+        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+    with atomic_file(out / "table.md") as tmp:
+        tmp.write_text(report.results_table_md({name: scores}, list(cfg.eval.table_horizons)))
+    log.info("evaluate %s: %d windows, SimErr %s", name, scores.n_windows,
+             ", ".join(f"{k} {v:.4g}" for k, v in scores.simerr.items()))
+    return scores

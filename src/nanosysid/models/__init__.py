@@ -1,0 +1,50 @@
+"""Benchmark models by name."""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["build_predictor", "MODEL_KINDS"]
+
+
+def _vehicle(v: Any) -> Vehicle:
+    if v is None:
+        return Vehicle()
+    return v if isinstance(v, Vehicle) else Vehicle.from_mapping(v)
+
+
+def _naive(**options: Any) -> Callable:
+    from nanosysid.models.physics import naive_predict
+
+    if options:
+        raise TypeError(f"naive model takes no options, got {sorted(options)}")
+    return naive_predict
+
+
+def _physics(*, angular_dynamics: bool, name: str) -> Callable:
+    def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1) -> Callable:
+        from nanosysid.models.physics import PhysicsStep
+        from nanosysid.rollout import StepPredictor
+
+        step = PhysicsStep(_vehicle(vehicle), dt=dt, substeps=substeps, angular_dynamics=angular_dynamics)
+        return StepPredictor(step, name=name)
+
+    return build
+
+
+MODEL_KINDS: dict[str, Callable[..., Callable]] = {
+    "naive": _naive,
+    "physics": _physics(angular_dynamics=False, name="physics"),
+    "physics_full": _physics(angular_dynamics=True, name="physics_full"),
+}
+
+
+def build_predictor(name: str, **options: Any) -> Callable:
+    """Build a predictor ``predict(y0 (B,13), u (B,H,4)) -> (B,H,13)`` by model name."""
+    try:
+        factory = MODEL_KINDS[name]
+    except KeyError:
+        raise KeyError(f"unknown model {name!r}; known: {', '.join(sorted(MODEL_KINDS))}") from None
+    return factory(**options)

@@ -1,0 +1,73 @@
+"""Train/test split by trajectory, never by sample (neighbouring samples would leak)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from pathlib import Path
+from typing import Sequence
+
+from nanosysid.config import ConfigError
+from nanosysid.dataio import DataError, atomic_dir, parse_flight_name, read_flight_csv
+
+__all__ = ["split_folder"]
+
+log = logging.getLogger(__name__)
+
+
+def split_folder(
+    src: str | Path,
+    dst: str | Path,
+    *,
+    train: Sequence[str],
+    test: Sequence[str],
+    horizon: int,
+) -> dict:
+    """Copy each validated flight CSV under ``src`` into ``dst/train`` or ``dst/test``.
+
+    A flight goes to the part whose list names its trajectory; flights of other
+    trajectories are left out. ``dst`` is replaced only when the whole split succeeded.
+
+    Returns:
+        Summary with the flights and sample counts of each part (also ``dst/split.json``).
+    """
+    src, dst = Path(src), Path(dst)
+    both = set(train) & set(test)
+    if both:
+        raise ConfigError(f"split: trajectories {sorted(both)} are listed for both train and test")
+    files = sorted(src.rglob("*.csv"))
+    if not files:
+        raise DataError(f"{src}: no flight CSV files found")
+    parts: dict[str, list[Path]] = {"train": [], "test": []}
+    seen: dict[str, Path] = {}
+    for f in files:
+        try:
+            trajectory, _ = parse_flight_name(f.stem)
+        except ValueError as e:
+            raise DataError(f"{f}: {e}") from None
+        if f.name in seen:
+            raise DataError(f"{f}: a flight of the same name is also at {seen[f.name]}")
+        seen[f.name] = f
+        part = "train" if trajectory in train else "test" if trajectory in test else None
+        if part is None:
+            log.info("split: %s left out (trajectory %r in neither list)", f.name, trajectory)
+            continue
+        parts[part].append(f)
+    if not parts["test"]:
+        raise DataError(f"{src}: no flight of the test trajectories {list(test)}")
+    summary: dict = {}
+    with atomic_dir(dst) as tmp:
+        for part, flist in parts.items():
+            (tmp / part).mkdir()
+            samples = {}
+            for f in flist:
+                samples[f.stem] = len(read_flight_csv(f, min_rows=horizon + 1))
+                shutil.copyfile(f, tmp / part / f.name)
+            summary[part] = {"flights": samples, "samples": sum(samples.values())}
+        (tmp / "split.json").write_text(json.dumps(summary, indent=1) + "\n")
+    log.info(
+        "split: train %d flights / %d samples, test %d flights / %d samples",
+        len(parts["train"]), summary["train"]["samples"], len(parts["test"]), summary["test"]["samples"],
+    )
+    return summary

@@ -1,0 +1,20 @@
+"""split: assign the flights of the data folder to train/ and test/ by trajectory."""
+
+from omegaconf import DictConfig
+
+from nanosysid import splitting
+from nanosysid.cli import run_stage
+
+
+def main(cfg: DictConfig) -> None:
+    splitting.split_folder(
+        cfg.data.raw_dir,
+        cfg.paths.split,
+        train=list(cfg.split.train),
+        test=list(cfg.split.test),
+        horizon=cfg.eval.horizon,
+    )
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_stage(main, description=__doc__))
