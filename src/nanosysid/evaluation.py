@@ -38,11 +38,13 @@ def evaluate_model(cfg: DictConfig, name: str) -> benchmark.Scores:
     predict = benchmark.model(kind, **options)
     scores = benchmark.evaluate(predict, bench.test, horizon=horizon, batch_size=int(cfg.eval.batch_size))
     out = Path(cfg.paths.eval) / name
-    payload = metrics_payload(name, scores, list(cfg.eval.table_horizons))
+    # table horizons beyond a shortened evaluation horizon have no value to show
+    table_h = [h for h in cfg.eval.table_horizons if h <= horizon]
+    payload = metrics_payload(name, scores, table_h)
     with atomic_file(out / "metrics.json") as tmp:
         tmp.write_text(json.dumps(payload, indent=1) + "\n")
     with atomic_file(out / "table.md") as tmp:
-        tmp.write_text(report.results_table_md({name: scores}, list(cfg.eval.table_horizons)))
+        tmp.write_text(report.results_table_md({name: scores}, table_h))
     log.info("evaluate %s: %d windows, SimErr %s", name, scores.n_windows,
              ", ".join(f"{k} {v:.4g}" for k, v in scores.simerr.items()))
     return scores

@@ -1,0 +1,118 @@
+"""Evaluation protocol: windows, metric known answers, the API, the built-in models."""
+
+import numpy as np
+import pytest
+import torch
+
+from nanosysid import benchmark, so3, synthetic
+from nanosysid.dataio import Flight
+
+
+def still_flight(name, T):
+    y = np.zeros((T, 13))
+    y[:, 9] = 1.0
+    return Flight(name=name, t=np.arange(T) * 0.01, u=np.zeros((T, 4)), y=y)
+
+
+@pytest.mark.parametrize("T, H", [(51, 50), (120, 50), (300, 7)])
+def test_window_count_and_alignment(T, H):
+    f = still_flight("melon_x_run1", T)
+    f.y[:, 0] = np.arange(T)  # x = sample index
+    f.u[:, 0] = np.arange(T)
+    y0, u, y = benchmark.windows(f, H)
+    assert len(y0) == T - H
+    assert u.shape == (T - H, H, 4) and y.shape == (T - H, H, 13)
+    t = 5 if T - H > 5 else 0
+    assert y0[t, 0] == t
+    assert np.array_equal(u[t, :, 0], np.arange(t, t + H))  # u_t .. u_{t+H-1}
+    assert np.array_equal(y[t, :, 0], np.arange(t + 1, t + H + 1))  # y_{t+1} .. y_{t+H}
+
+
+def test_rotated_prediction_gives_exactly_that_angle():
+    rng = np.random.default_rng(0)
+    N, H = 40, 5
+    q = so3.quat_exp(torch.from_numpy(rng.normal(size=(N, H, 3))))
+    y_true = np.zeros((N, H, 13))
+    y_true[..., 6:10] = q.numpy()
+    angle = 0.123
+    axis = rng.normal(size=(N, H, 3))
+    axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+    y_pred = y_true.copy()
+    y_pred[..., 6:10] = so3.quat_mul(q, so3.quat_exp(torch.from_numpy(axis * angle))).numpy()
+    y_pred[..., 6:10] *= -1  # the other sign of the same rotation
+    s = benchmark.score(y_true, y_pred)
+    assert np.allclose(s.mae["R"], angle, atol=1e-12)
+    assert np.all(s.mae["p"] == 0) and np.all(s.mae["w"] == 0)
+
+
+def test_constructed_errors_give_expected_mae():
+    N, H = 4, 3
+    y_true = np.zeros((N, H, 13))
+    y_true[..., 9] = 1
+    y_pred = y_true.copy()
+    # window i is off by (3, 4, 0) * i in position: error 5 i, mean over windows 5 * 1.5
+    y_pred[..., 0] = 3 * np.arange(N)[:, None]
+    y_pred[..., 1] = 4 * np.arange(N)[:, None]
+    # velocity error grows with the horizon: 0.1 h
+    y_pred[..., 5] = 0.1 * np.arange(1, H + 1)
+    s = benchmark.score(y_true, y_pred)
+    assert np.allclose(s.mae["p"], 7.5)
+    assert np.allclose(s.mae["v"], [0.1, 0.2, 0.3])
+    assert np.isclose(s.simerr["v"], 0.6) and np.isclose(s.simerr["p"], 22.5)
+
+
+def test_evaluate_averages_flights_and_keeps_each():
+    flights = [still_flight("melon_a_run1", 80), still_flight("melon_a_run2", 130)]
+
+    def offset_predict(y0, u):
+        out = np.repeat(y0[:, None], u.shape[1], axis=1)
+        out[..., 2] += 1.0 if len(y0) == 30 else 3.0  # flight 1 has 30 windows, flight 2 has 80
+        return out
+
+    s = benchmark.evaluate(offset_predict, flights, horizon=50)
+    assert s.n_windows == 30 + 80
+    assert np.allclose(s.per_flight["melon_a_run1"].mae["p"], 1.0)
+    assert np.allclose(s.per_flight["melon_a_run2"].mae["p"], 3.0)
+    assert np.allclose(s.mae["p"], 2.0)  # mean over flights, not pooled over windows
+    assert np.isclose(s.simerr["p"], 100.0)
+
+
+def test_evaluate_batches_give_the_same_answer_and_torch_output_is_accepted():
+    flights = synthetic.synthetic_flights(["melon_s_run1"], 300, seed=3)
+    phys = benchmark.model("physics")
+    a = benchmark.evaluate(phys, flights, horizon=20, batch_size=7)
+    b = benchmark.evaluate(phys, flights, horizon=20, batch_size=10_000)
+    for k in a.mae:
+        assert np.allclose(a.mae[k], b.mae[k], rtol=1e-12)
+    c = benchmark.evaluate(lambda y0, u: torch.from_numpy(phys(y0, u)), flights, horizon=20)
+    assert np.allclose(c.mae["v"], a.mae["v"])
+
+
+def test_predictor_with_wrong_shape_is_rejected():
+    with pytest.raises(ValueError, match="expected"):
+        benchmark.evaluate(lambda y0, u: y0, [still_flight("melon_a_run1", 60)], horizon=5)
+
+
+def test_builtin_models_on_flights_of_the_nominal_dynamics():
+    flights = synthetic.synthetic_flights(["melon_s_run1", "melon_s_run2"], 400, substeps=1, seed=1)
+    naive = benchmark.evaluate(benchmark.model("naive"), flights)
+    phys = benchmark.evaluate(benchmark.model("physics"), flights)
+    full = benchmark.evaluate(benchmark.model("physics_full"), flights)
+    # same integrator and parameters as the data: exact up to rounding
+    assert all(v < 1e-9 for v in full.simerr.values())
+    # dw/dt = 0 is exact at h = 1 only in the kinematic part, and far better than naive
+    for k in ("p", "v"):
+        assert phys.simerr[k] < 0.1 * naive.simerr[k]
+    assert np.allclose(phys.mae["w"], naive.mae["w"])  # both hold w constant
+
+
+def test_model_by_unknown_name():
+    with pytest.raises(KeyError, match="unknown model 'nope'"):
+        benchmark.model("nope")
+
+
+def test_scores_round_trip_through_dict():
+    flights = synthetic.synthetic_flights(["melon_s_run1"], 120, seed=2)
+    s = benchmark.evaluate(benchmark.model("physics"), flights, horizon=10)
+    back = benchmark.Scores.from_dict(s.to_dict())
+    assert back.simerr == s.simerr and list(back.per_flight) == ["melon_s_run1"]

@@ -1,0 +1,121 @@
+"""Published CSV schema: round trip, and one clear error per kind of bad input."""
+
+import os
+
+import numpy as np
+import pytest
+
+from nanosysid import benchmark, synthetic
+from nanosysid.dataio import DataError, atomic_dir, read_flight_csv, write_flight_csv
+
+
+@pytest.fixture
+def dataset(tmp_path):
+    flights = synthetic.synthetic_flights(["square_d_run1", "melon_d_run1"], 80, seed=0)
+    for part, f in zip(("train", "test"), flights):
+        write_flight_csv(f, tmp_path / part / f"{f.name}.csv")
+    return tmp_path, flights
+
+
+def test_round_trip(dataset):
+    root, flights = dataset
+    bench = benchmark.load(root, horizon=50)
+    assert [f.name for f in bench.train] == ["square_d_run1"]
+    got = bench.test[0]
+    assert np.allclose(got.y, flights[1].y, rtol=1e-9, atol=1e-12)
+    assert np.allclose(got.u, flights[1].u, rtol=1e-9)
+    assert set(got.extra) >= {"ax_body", "ay_body", "az_body"}
+    assert got.trajectory == "melon" and got.run == 1
+
+
+def test_same_flight_same_bytes(tmp_path):
+    a, b = (synthetic.synthetic_flights(["melon_d_run1"], 50, seed=5, noise=0.01)[0] for _ in range(2))
+    write_flight_csv(a, tmp_path / "a.csv")
+    write_flight_csv(b, tmp_path / "b.csv")
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+
+
+def corrupt(path, fn):
+    lines = path.read_text().splitlines()
+    header = lines[0].split(",")
+    rows = [line.split(",") for line in lines[1:]]
+    header, rows = fn(header, rows)
+    path.write_text("\n".join([",".join(header)] + [",".join(r) for r in rows]) + "\n")
+
+
+def set_cell(col, row, value):
+    def fn(header, rows):
+        rows[row][header.index(col)] = value
+        return header, rows
+
+    return fn
+
+
+def drop_col(col):
+    def fn(header, rows):
+        i = header.index(col)
+        return header[:i] + header[i + 1 :], [r[:i] + r[i + 1 :] for r in rows]
+
+    return fn
+
+
+@pytest.mark.parametrize(
+    "damage, pattern",
+    [
+        (drop_col("vz"), r"missing column\(s\) 'vz'"),
+        (set_cell("wy", 17, "fast"), r"column 'wy', row 17 \(line 19\): non-numeric value 'fast'"),
+        (set_cell("x", 3, "nan"), r"column 'x', row 3 \(line 5\): missing value \(NaN\)"),
+        (set_cell("x", 4, ""), r"column 'x', row 4 \(line 6\): missing value \(NaN\)"),
+        (set_cell("t", 30, "0.1"), r"column 't', row 30 \(line 32\): time does not increase"),
+        (set_cell("qw", 12, "1.5"), r"column 'qx/qy/qz/qw', row 12 \(line 14\): quaternion norm"),
+    ],
+)
+def test_bad_input_names_file_column_and_row(dataset, damage, pattern):
+    root, _ = dataset
+    path = root / "test" / "melon_d_run1.csv"
+    corrupt(path, damage)
+    with pytest.raises(DataError, match=pattern) as e:
+        benchmark.load(root)
+    assert str(path) in str(e.value)
+
+
+def test_repeated_timestamp_is_rejected(dataset):
+    root, _ = dataset
+    path = root / "train" / "square_d_run1.csv"
+    corrupt(path, lambda h, r: (h, r[:10] + [r[9]] + r[10:]))
+    with pytest.raises(DataError, match=r"square_d_run1.csv: column 't', row 10 \(line 12\): time does not increase"):
+        benchmark.load(root)
+
+
+def test_too_few_rows(dataset):
+    root, _ = dataset
+    with pytest.raises(DataError, match=r"square_d_run1.csv: 80 rows, fewer than the 101 one window needs"):
+        benchmark.load(root, horizon=100)
+
+
+def test_not_a_csv_and_missing_folder(tmp_path, dataset):
+    root, _ = dataset
+    (root / "test" / "melon_d_run1.csv").write_bytes(b"")
+    with pytest.raises(DataError, match="not a readable CSV"):
+        benchmark.load(root)
+    with pytest.raises(DataError, match="no such folder"):
+        benchmark.load(tmp_path / "nowhere")
+
+
+def test_small_quaternion_drift_is_accepted(tmp_path):
+    f = synthetic.synthetic_flights(["melon_d_run1"], 60, seed=0)[0]
+    f.y[:, 6:10] *= 1.0009
+    write_flight_csv(f, tmp_path / "f.csv")
+    assert len(read_flight_csv(tmp_path / "f.csv")) == 60
+
+
+def test_atomic_dir_keeps_old_contents_on_failure(tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "keep.txt").write_text("old")
+    with pytest.raises(RuntimeError):
+        with atomic_dir(out) as tmp:
+            (tmp / "partial.txt").write_text("new")
+            raise RuntimeError("stage failed")
+    assert os.listdir(out) == ["keep.txt"]
+    assert os.listdir(tmp_path) == ["out"]  # no temporary left behind
