@@ -11,14 +11,14 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def test_committed_params_yaml_is_the_composition_of_conf():
-    composed = config.compose_text()
+    composed = config.compose_text(conf_dir=ROOT / "conf")
     committed = (ROOT / "params.yaml").read_text()
     assert committed == composed, "params.yaml is stale: run `make params` and commit it"
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "model").glob("*.yaml")))
 def test_every_model_config_composes_and_builds(name):
-    cfg = yaml.safe_load(config.compose_text([f"+model@models.probe={name}"]))
+    cfg = yaml.safe_load(config.compose_text([f"+model@models.probe={name}"], conf_dir=ROOT / "conf"))
     options = dict(cfg["models"]["probe"])
     predictor = benchmark.model(options.pop("kind"), **options)
     assert callable(predictor)
@@ -26,20 +26,20 @@ def test_every_model_config_composes_and_builds(name):
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "data").glob("*.yaml")))
 def test_every_data_config_composes(name):
-    cfg = yaml.safe_load(config.compose_text([f"data={name}"]))
+    cfg = yaml.safe_load(config.compose_text([f"data={name}"], conf_dir=ROOT / "conf"))
     assert cfg["data"]["raw_dir"]
 
 
 def test_each_model_has_its_own_key_and_the_vehicle_is_resolved():
-    cfg = config.load_params()
+    cfg = config.load_params(path=ROOT / "params.yaml")
     assert set(cfg.models) >= {"naive", "physics", "physics_full"}
     assert cfg.models.physics.vehicle.k_f == cfg.vehicle.k_f
 
 
 def test_overrides_on_params(tmp_path):
-    cfg = config.load_params(["eval.horizon=20", "+extra.flag=true", "~split.test"])
+    cfg = config.load_params(["eval.horizon=20", "+extra.flag=true", "~split.test"], path=ROOT / "params.yaml")
     assert cfg.eval.horizon == 20 and cfg.extra.flag is True and "test" not in cfg.split
     with pytest.raises(config.ConfigError, match="no_such_key"):
-        config.load_params(["no_such_key=1"])
+        config.load_params(["no_such_key=1"], path=ROOT / "params.yaml")
     with pytest.raises(config.ConfigError, match="not found"):
         config.load_params(path=tmp_path / "params.yaml")

@@ -7,6 +7,7 @@ from pathlib import Path
 
 import pytest
 
+from nanosysid import config
 from nanosysid.cli import run_stage
 from stages import evaluate, simulate, split
 
@@ -14,10 +15,16 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def tiny(tmp_path, *extra):
+    """Stage arguments for a tiny synthetic case in tmp_path: a composed params file plus overrides."""
+    params = tmp_path / "params.yaml"
+    if not params.exists():
+        config.compose(["data=synthetic"], out=params, conf_dir=ROOT / "conf")
     return [
+        "--params", str(params),
         f"data.raw_dir={tmp_path / 'raw'}",
         f"paths.split={tmp_path / 'split'}",
         f"paths.eval={tmp_path / 'eval'}",
+        f"paths.sim_report={tmp_path / 'sim'}",
         "data.samples=150",
         "data.runs={square: 1, random: 0, chirp: 1, melon: 2}",
         *extra,
@@ -45,6 +52,22 @@ def test_stages_on_a_tiny_case(tmp_path):
     # per sample where the data used 4: small but nonzero error
     assert scores["physics_full"]["p"] < 1e-3 * scores["naive"]["p"]
     assert scores["physics"]["p"] < 0.2 * scores["naive"]["p"]
+
+
+def test_simulate_stage_writes_the_published_layout_and_statistics(tmp_path):
+    params = tmp_path / "params.yaml"
+    config.compose([], out=params, conf_dir=ROOT / "conf")  # the default data: the simulator
+    args = [
+        "--params", str(params), f"data.raw_dir={tmp_path / 'raw'}", f"paths.sim_report={tmp_path / 'sim'}",
+        "data.runs={square: 0, random: 0, chirp: 1, melon: 1}", "data.sim.preroll=0.5",
+        "data.sim.trajectories.chirp.duration=2.0",
+        "data.sim.trajectories.melon={duration: 2.0, circle_time: 1.0, return_time: 0.5}",
+    ]
+    assert run_stage(simulate.main, description="", argv=args) == 0
+    files = sorted(str(p.relative_to(tmp_path / "raw")) for p in (tmp_path / "raw").rglob("*.csv"))
+    assert files == ["test/melon_20250601_run1.csv", "train/chirp_20250601_run1.csv"]
+    stats = (tmp_path / "sim" / "stats.md").read_text()
+    assert "| melon | 2.00 / 65.00 (0.03 ✗)" in stats and "| chirp |" in stats
 
 
 def test_failing_split_keeps_previous_output_and_names_the_file(tmp_path, capsys):
@@ -95,12 +118,12 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     sh("git", "init", "-q")
     sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "add", "-A")
     sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "base")
-    small = ["-S", "data.samples=120", "-S", "data.runs={square: 1, random: 0, chirp: 0, melon: 1}"]
+    small = ["-S", "data=synthetic", "-S", "data.samples=120", "-S", "data.runs={square: 1, random: 0, chirp: 0, melon: 1}"]
     out = sh("dvc", "exp", "run", *small)
     assert "Running stage 'evaluate@physics'" in out and "Running stage 'evaluate@naive'" in out
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=2")
     assert "Running stage 'evaluate@physics':" in out
-    for other in ("simulate", "split", "evaluate@naive", "evaluate@physics_full"):
+    for other in ("simulate", "split", "evaluate@naive", "evaluate@physics_full", "evaluate@oracle"):
         assert f"Running stage '{other}'" not in out
     # back to the earlier value: restored from the run cache, not recomputed
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=1")

@@ -35,7 +35,7 @@ def run_stage(
         parser.add_argument(name_arg)
     parser.add_argument("overrides", nargs="*", help="Hydra-style overrides, e.g. eval.horizon=20")
     parser.add_argument("--params", default=None, help="params file (default: params.yaml)")
-    args = parser.parse_args(argv)
+    args = parser.parse_intermixed_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         kw = {"path": args.params} if args.params else {}

@@ -22,9 +22,10 @@ from omegaconf import DictConfig, OmegaConf
 
 __all__ = ["compose", "compose_text", "load_params", "apply_overrides", "ConfigError"]
 
-ROOT = Path(__file__).resolve().parents[2]
-CONF_DIR = ROOT / "conf"
-PARAMS = ROOT / "params.yaml"
+# relative to the working directory: stages run from the root of the project they belong to
+# (DVC runs them there, also in the temporary copies of `dvc exp run`)
+CONF_DIR = Path("conf")
+PARAMS = Path("params.yaml")
 
 
 class ConfigError(ValueError):
@@ -37,7 +38,7 @@ def compose_text(overrides: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) ->
 
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "params.yaml"
-        compose_and_dump(out, str(conf_dir.resolve()), None, "config", str(ROOT), list(overrides))
+        compose_and_dump(out, str(Path(conf_dir).resolve()), None, "config", str(Path.cwd()), list(overrides))
         return out.read_text(encoding="utf-8")
 
 

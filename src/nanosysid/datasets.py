@@ -5,10 +5,10 @@ from __future__ import annotations
 import logging
 from pathlib import Path
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from nanosysid.config import ConfigError
-from nanosysid.dataio import atomic_dir, write_flight_csv
+from nanosysid.dataio import atomic_dir, atomic_file, write_flight_csv
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["write_default_dataset", "flight_names"]
@@ -22,9 +22,28 @@ def flight_names(runs: dict[str, int], date: str) -> list[str]:
 
 
 def write_default_dataset(cfg: DictConfig) -> list[Path]:
-    """Generate the flights of ``cfg.data`` into ``cfg.data.raw_dir`` (replaced atomically)."""
+    """Generate the flights of ``cfg.data`` into ``cfg.data.raw_dir`` (replaced atomically).
+
+    Simulated flights go to ``train/`` and ``test/`` by the split lists, as in the published
+    layout, and their trajectory statistics to ``<paths.sim_report>/stats.md``.
+    """
+    from nanosysid.sim.stats import stats_markdown, trajectory_stats
+
     data = cfg.data
-    if data.source == "synthetic":
+    parts: dict[str, str] = {}
+    if data.source == "sim":
+        from nanosysid import sim
+
+        flights = sim.simulate_flights(
+            dict(data.runs),
+            effects=dict(data.effects),
+            seed=int(cfg.seed),
+            cfg=sim.SimConfig.from_mapping(OmegaConf.to_container(data.sim, resolve=True)),
+            vehicle=Vehicle.from_mapping(cfg.vehicle),
+            date=str(data.date),
+        )
+        parts = {t: "train" for t in cfg.split.train} | {t: "test" for t in cfg.split.test}
+    elif data.source == "synthetic":
         from nanosysid.synthetic import synthetic_flights
 
         flights = synthetic_flights(
@@ -36,10 +55,12 @@ def write_default_dataset(cfg: DictConfig) -> list[Path]:
             seed=int(cfg.seed),
         )
     else:
-        raise ConfigError(f"data.source: unknown source {data.source!r} (known: synthetic)")
+        raise ConfigError(f"data.source: unknown source {data.source!r} (known: sim, synthetic)")
+    with atomic_file(Path(cfg.paths.sim_report) / "stats.md") as tmp:
+        tmp.write_text(stats_markdown(trajectory_stats(flights)))
     out = Path(data.raw_dir)
     with atomic_dir(out) as tmp:
         for f in flights:
-            write_flight_csv(f, tmp / f"{f.name}.csv")
+            write_flight_csv(f, tmp / parts.get(f.trajectory, "") / f"{f.name}.csv")
     log.info("wrote %d flights to %s", len(flights), out)
-    return sorted(out.glob("*.csv"))
+    return sorted(out.rglob("*.csv"))

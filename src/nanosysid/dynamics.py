@@ -16,6 +16,7 @@ Physical parameters are keyword-only arguments, so a partially applied function
 
 from __future__ import annotations
 
+import functools
 from typing import Callable
 
 import torch
@@ -40,6 +41,13 @@ def split_state(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
     return x[..., 0:3], x[..., 3:6], x[..., 6:10], x[..., 10:13]
 
 
+@functools.lru_cache(maxsize=64)
+def _constant(values: tuple, dtype: torch.dtype, device) -> Tensor:
+    # rebuilding small constant tensors costs more than the arithmetic at batch sizes of
+    # a few flights, where the simulator's 1 kHz loop spends its time
+    return torch.tensor(values, dtype=dtype, device=device)
+
+
 def mixer_matrix(*, k_f: float, k_m: float, arm: float, dtype=torch.float64, device=None) -> Tensor:
     """The paper's 'x' mixing matrix (equation thrust_torque_mapping), shape ``(4, 4)``.
 
@@ -52,16 +60,13 @@ def mixer_matrix(*, k_f: float, k_m: float, arm: float, dtype=torch.float64, dev
             projected on the body x or y axis.
     """
     kl = k_f * arm
-    return torch.tensor(
-        [
-            [k_f, k_f, k_f, k_f],
-            [-kl, -kl, kl, kl],
-            [-kl, kl, kl, -kl],
-            [-k_m, k_m, -k_m, k_m],
-        ],
-        dtype=dtype,
-        device=device,
+    rows = (
+        (k_f, k_f, k_f, k_f),
+        (-kl, -kl, kl, kl),
+        (-kl, kl, kl, -kl),
+        (-k_m, k_m, -k_m, k_m),
     )
+    return _constant(rows, dtype, device)
 
 
 def rotor_wrench(u: Tensor, *, k_f: float, k_m: float, arm: float) -> tuple[Tensor, Tensor]:
@@ -109,12 +114,13 @@ def quad_dynamics(
     f_b = torch.cat((torch.zeros_like(v[..., :2]), thrust.unsqueeze(-1)), dim=-1)  # [0, 0, T]
     if force_body is not None:
         f_b = f_b + force_body
-    g = torch.tensor([0.0, 0.0, -gravity], dtype=x.dtype, device=x.device)
+    g = _constant((0.0, 0.0, -gravity), x.dtype, x.device)
     v_dot = so3.quat_rotate(q, f_b) / mass + g
-    w_quat = torch.cat((w, torch.zeros_like(w[..., :1])), dim=-1)
-    q_dot = 0.5 * so3.quat_mul(q, w_quat)
+    # q_dot = 1/2 q ⊗ [w, 0], in vector form (a few ops instead of a full product)
+    qv, qw = q[..., :3], q[..., 3:]
+    q_dot = 0.5 * torch.cat((qw * w + torch.linalg.cross(qv, w, dim=-1), -(qv * w).sum(-1, keepdim=True)), dim=-1)
     if angular_dynamics:
-        J = torch.tensor(inertia, dtype=x.dtype, device=x.device)
+        J = _constant(tuple(inertia), x.dtype, x.device)
         if torque_body is not None:
             tau = tau + torque_body
         w_dot = (tau - torch.linalg.cross(w, J * w, dim=-1)) / J

@@ -34,10 +34,18 @@ def _physics(*, angular_dynamics: bool, name: str) -> Callable:
     return build
 
 
+def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: float = 0.01) -> Callable:
+    from nanosysid import sim
+
+    eff = None if effects is None else dict(effects)
+    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt)
+
+
 MODEL_KINDS: dict[str, Callable[..., Callable]] = {
     "naive": _naive,
     "physics": _physics(angular_dynamics=False, name="physics"),
     "physics_full": _physics(angular_dynamics=True, name="physics_full"),
+    "oracle": _oracle,
 }
 
 

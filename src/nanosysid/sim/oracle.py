@@ -1,0 +1,67 @@
+"""The oracle: a predictor that integrates the simulator's true dynamics, hidden effects included.
+
+It is the physical limit of the benchmark on simulated data. What it still cannot know is the
+measurement noise on ``y0`` and on ``u``, the rotor speeds between samples (it interpolates
+linearly), and, with ``telemetry_delay``, the last rotor speeds of a window, which the delay
+pushes past its end (it holds the last known one).
+"""
+
+from __future__ import annotations
+
+import functools
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from nanosysid import dynamics, so3
+from nanosysid.rollout import as_tensor
+from nanosysid.sim.effects import World
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["Oracle"]
+
+
+class Oracle:
+    """``predict(y0 (B, 13), u (B, H, 4)) -> (B, H, 13)`` with the true dynamics of ``world``."""
+
+    def __init__(self, world: World, vehicle: Vehicle | None = None, *, dt: float = 0.01, substeps: int = 4) -> None:
+        self.world = world
+        self.vehicle = vehicle or Vehicle()
+        self.dt = dt
+        self.substeps = substeps
+        self._f = functools.partial(dynamics.quad_dynamics, **self.vehicle.dynamics_kwargs())
+
+    def _true_rotor_speeds(self, u: Tensor) -> Tensor:
+        """Undo the telemetry delay: the true speed at sample h was recorded at h + delay."""
+        shift = self.world.telemetry_delay / self.dt
+        if shift == 0:
+            return u
+        H = u.shape[1]
+        pos = torch.clamp(torch.arange(H, dtype=u.dtype) + shift, max=H - 1)
+        lo = pos.floor().long()
+        hi = torch.clamp(lo + 1, max=H - 1)
+        w = (pos - lo).view(1, H, 1)
+        return u[:, lo] * (1 - w) + u[:, hi] * w
+
+    @torch.no_grad()
+    def __call__(self, y0, u) -> np.ndarray:
+        y = as_tensor(y0, torch.float64)
+        om = self._true_rotor_speeds(as_tensor(u, torch.float64))  # (B, H, 4)
+        # rotor speeds move linearly from one sample to the next; the last one is held
+        om_next = torch.cat((om[:, 1:], om[:, -1:]), dim=1)
+        om_dot = (om_next - om) / self.dt
+        h = self.dt / self.substeps
+        out = []
+        for k in range(om.shape[1]):
+            for j in range(self.substeps):
+                om_mid = om[:, k] + om_dot[:, k] * (j + 0.5) * h
+
+                def f(x, w_rot, od=om_dot[:, k]):
+                    force, torque = self.world.wrench(x, w_rot, od, self.vehicle)
+                    return self._f(x, w_rot, force_body=force, torque_body=torque)
+
+                y = dynamics.rk4_step(f, y, om_mid, h)
+            y = torch.cat((y[:, :6], so3.quat_normalize(y[:, 6:10]), y[:, 10:]), dim=-1)
+            out.append(y)
+        return torch.stack(out, dim=1).numpy()

@@ -1,0 +1,223 @@
+"""Closed-loop flight simulation of the benchmark vehicle, all flights advancing as one batch.
+
+The physics (rigid body of :mod:`nanosysid.dynamics` plus first-order rotor response and
+the hidden effects) is integrated with RK4 at ``physics_rate``; the Mellinger controller runs
+at ``control_rate`` on the true state; outputs are sampled at ``output_rate`` with white
+measurement noise. Each flight starts with a hover pre-roll (not recorded) that lets the
+integrators settle, and is cut to its trajectory's duration.
+"""
+
+from __future__ import annotations
+
+import functools
+import logging
+from dataclasses import dataclass, field
+from typing import Any, Mapping
+
+import numpy as np
+import torch
+from scipy.signal import lfilter
+from tqdm.auto import tqdm
+
+from nanosysid import dynamics, so3
+from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, OUTPUT_COLUMNS, Flight
+from nanosysid.sim.controller import ControllerState, Mellinger, MellingerGains
+from nanosysid.sim.effects import World
+from nanosysid.sim.trajectories import Reference, make_reference
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["SimConfig", "NoiseConfig", "simulate", "TRUTH_COLUMNS"]
+
+log = logging.getLogger(__name__)
+
+TRAJECTORY_INDEX = {"square": 0, "random": 1, "chirp": 2, "melon": 3}
+# truth signals stored beside the published columns
+WRENCH_COLUMNS = ["fx_body", "fy_body", "fz_body", "tx_body", "ty_body", "tz_body"]
+TRUTH_COLUMNS = [f"true_{c}" for c in (*INPUT_COLUMNS, *OUTPUT_COLUMNS, *ACCEL_COLUMNS, *WRENCH_COLUMNS)]
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Standard deviations of white measurement noise at the output rate."""
+
+    pos: float = 5e-4  # m
+    vel: float = 5e-3  # m/s
+    # slowly varying error of the onboard velocity estimate (first-order Gauss-Markov): the
+    # benchmark's velocity is an estimate, not the derivative of the mocap position
+    vel_drift: float = 0.06  # m/s
+    vel_drift_tau: float = 0.5  # s
+    att: float = 1e-3  # rad, rotation-vector perturbation
+    gyro: float = 0.02  # rad/s
+    accel: float = 0.5  # m/s^2
+    rotor: float = 3.0  # rad/s
+
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """Rates, motor model, trajectory options and noise of a simulation."""
+
+    physics_rate: float = 1000.0  # Hz
+    control_rate: float = 500.0  # Hz
+    output_rate: float = 100.0  # Hz
+    motor_tau: float = 0.02  # s, first-order rotor speed response
+    omega_min: float = 500.0  # rad/s, idle
+    omega_max: float = 2900.0  # rad/s
+    preroll: float = 2.0  # s of hover before the trajectory starts
+    initial_offset: float = 0.02  # m, std of the initial position offset
+    waypoint_seed: int = 7  # seed of the Random waypoints, shared by its runs
+    feedforward: float = 0.85  # share of the velocity and acceleration setpoints sent to the controller
+    noise: NoiseConfig = field(default_factory=NoiseConfig)
+    trajectories: Mapping[str, Mapping[str, Any]] = field(
+        default_factory=lambda: {"random": {"box": (2.4, 2.4, 1.2)}, "melon": {"ramp_time": 0.15}}
+    )
+    gains: MellingerGains = field(default_factory=MellingerGains)
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any]) -> "SimConfig":
+        cfg = dict(cfg)
+        noise = NoiseConfig(**{k: float(v) for k, v in dict(cfg.pop("noise", None) or {}).items()})
+        gains = MellingerGains.from_mapping(dict(cfg.pop("gains", None) or {}))
+        traj = {k: dict(v) for k, v in dict(cfg.pop("trajectories", None) or {}).items()}
+        return cls(noise=noise, gains=gains, trajectories=traj or cls().trajectories, **cfg)
+
+
+def _trajectory_options(cfg: SimConfig, name: str) -> dict[str, Any]:
+    opts = {k: (tuple(v) if isinstance(v, (list, tuple)) else v) for k, v in cfg.trajectories.get(name, {}).items()}
+    if name == "random":
+        opts.setdefault("seed", cfg.waypoint_seed)
+    return opts
+
+
+def simulate(
+    flights: list[tuple[str, str | Reference, int]],
+    *,
+    world: World,
+    vehicle: Vehicle | None = None,
+    cfg: SimConfig | None = None,
+    seed: int = 0,
+    noise: bool = True,
+    progress: bool = True,
+) -> list[Flight]:
+    """Simulate flights given as ``(name, trajectory, run)``; the trajectory is a name or a
+    :class:`~nanosysid.sim.trajectories.Reference`.
+
+    A flight's random draws (initial offset, noise) depend only on ``(seed, trajectory, run)``,
+    so it comes out the same alone or in a batch.
+
+    Returns:
+        One :class:`Flight` per entry: the published columns (measured, with noise) and the
+        truth in ``true_*`` extras (outputs, rotor speeds, specific force, body force and torque).
+    """
+    vehicle = vehicle or Vehicle()
+    cfg = cfg or SimConfig()
+    B = len(flights)
+    refs = [t if isinstance(t, Reference) else make_reference(t, **_trajectory_options(cfg, t)) for _, t, _ in flights]
+    rngs = [np.random.default_rng([seed, TRAJECTORY_INDEX.get(r.name, 9), run]) for r, (_, _, run) in zip(refs, flights)]
+
+    dt = 1.0 / cfg.physics_rate
+    ctrl_every = round(cfg.physics_rate / cfg.control_rate)
+    out_every = round(cfg.physics_rate / cfg.output_rate)
+    n_pre = round(cfg.preroll * cfg.output_rate)  # output samples in the pre-roll
+    durations = [r.duration for r in refs]
+    n_out = [round(d * cfg.output_rate) + 1 for d in durations]
+    n_total_out = n_pre + max(n_out)
+    n_steps = (n_total_out - 1) * out_every + 1
+
+    # setpoints at every control instant, (B, Nc, 3) each
+    t_ctrl = (np.arange(0, n_steps, ctrl_every) * dt) - cfg.preroll
+    pva = [r.pva(t_ctrl) for r in refs]
+    p_ref, v_ref, a_ref = (torch.from_numpy(np.stack([x[i] for x in pva])) for i in range(3))
+    v_ref, a_ref = v_ref * cfg.feedforward, a_ref * cfg.feedforward
+
+    x = torch.zeros(B, 17, dtype=torch.float64)
+    offsets = np.stack([rng.normal(scale=cfg.initial_offset, size=3) for rng in rngs])
+    x[:, 0:3] = p_ref[:, 0] + torch.from_numpy(offsets)
+    x[:, 9] = 1.0
+    x[:, 13:] = vehicle.hover_speed
+    ctrl = Mellinger(vehicle, cfg.gains, dt=ctrl_every * dt, omega_min=cfg.omega_min, omega_max=cfg.omega_max)
+    cstate = ControllerState.zeros(B)
+    base = functools.partial(dynamics.quad_dynamics, **vehicle.dynamics_kwargs())
+    has_wrench = any(world.s(k) for k in world.strengths if k != "telemetry_delay")
+
+    def rotor_state_deriv(z: torch.Tensor, cmd: torch.Tensor):
+        om = z[:, 13:]
+        om_dot = (cmd - om) / cfg.motor_tau
+        force, torque = world.wrench(z[:, :13], om, om_dot, vehicle) if has_wrench else (None, None)
+        return om, om_dot, force, torque
+
+    def deriv(z: torch.Tensor, cmd: torch.Tensor) -> torch.Tensor:
+        om, om_dot, force, torque = rotor_state_deriv(z, cmd)
+        return torch.cat((base(z[:, :13], om, force_body=force, torque_body=torque), om_dot), dim=-1)
+
+    rec_x = torch.empty(B, n_total_out, 17, dtype=torch.float64)
+    rec_w = torch.empty(B, n_total_out, 6, dtype=torch.float64)  # body force (N) and torque (N m)
+    cmd = None
+    k_out = 0
+    bar = tqdm(total=n_steps, desc=f"simulate {B} flights", unit="step", unit_scale=True,
+               disable=not progress, mininterval=1.0)
+    for k in range(n_steps):
+        if k % ctrl_every == 0:
+            j = k // ctrl_every
+            cmd, cstate = ctrl(x[:, :13], p_ref[:, j], v_ref[:, j], a_ref[:, j], cstate)
+        if k % out_every == 0:
+            om, om_dot, force, torque = rotor_state_deriv(x, cmd)
+            thrust, tau = dynamics.rotor_wrench(om, k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm)
+            f_b = torch.stack((torch.zeros_like(thrust), torch.zeros_like(thrust), thrust), -1)
+            if force is not None:
+                f_b, tau = f_b + force, tau + torque
+            rec_x[:, k_out] = x
+            rec_w[:, k_out] = torch.cat((f_b, tau), -1)
+            k_out += 1
+            if k_out == n_total_out:
+                break
+        x = dynamics.rk4_step(deriv, x, cmd, dt)
+        x[:, 6:10] = so3.quat_normalize(x[:, 6:10])
+        if k % 1000 == 0:
+            bar.update(min(1000, n_steps - bar.n))
+    bar.close()
+    if not torch.isfinite(rec_x).all():
+        raise RuntimeError("simulation diverged (non-finite state); check the controller gains and motor model")
+
+    out = []
+    t_full = np.arange(n_total_out) / cfg.output_rate - cfg.preroll
+    for i, (name, _, _) in enumerate(flights):
+        sl = slice(n_pre, n_pre + n_out[i])
+        xs = rec_x[i].numpy()
+        wr = rec_w[i].numpy()
+        y_true = xs[sl, :13]
+        omega_true = xs[sl, 13:]
+        # recorded rotor speeds lag the true ones: sample the true history d seconds earlier
+        u_rec = _delayed(t_full, xs[:, 13:], t_full[sl] - world.telemetry_delay)
+        acc_true = wr[sl, :3] / vehicle.mass  # specific force in the body frame (accelerometer)
+        y, u, acc = y_true.copy(), u_rec, acc_true.copy()
+        if noise:
+            y, u, acc = _add_noise(y, u, acc, cfg.noise, rngs[i], 1.0 / cfg.output_rate)
+        extra = {c: acc[:, j] for j, c in enumerate(ACCEL_COLUMNS)}
+        truth = np.concatenate((omega_true, y_true, acc_true, wr[sl]), axis=1)
+        extra.update({c: truth[:, j].copy() for j, c in enumerate(TRUTH_COLUMNS)})
+        out.append(Flight(name=name, t=np.round(t_full[sl], 10), u=u, y=y, extra=extra))
+    return out
+
+
+def _delayed(t: np.ndarray, signal: np.ndarray, t_query: np.ndarray) -> np.ndarray:
+    """Linear interpolation of each column of ``signal (T, C)`` at ``t_query``."""
+    return np.stack([np.interp(t_query, t, signal[:, c]) for c in range(signal.shape[1])], axis=1)
+
+
+def _add_noise(y, u, acc, n: NoiseConfig, rng: np.random.Generator, dt: float):
+    T = len(y)
+    y = y.copy()
+    y[:, 0:3] += rng.normal(scale=n.pos, size=(T, 3))
+    y[:, 3:6] += rng.normal(scale=n.vel, size=(T, 3))
+    if n.vel_drift > 0:
+        a = np.exp(-dt / n.vel_drift_tau)
+        drive = rng.normal(scale=n.vel_drift * np.sqrt(1 - a * a), size=(T, 3))
+        drive[0] = rng.normal(scale=n.vel_drift, size=3)  # start in the stationary distribution
+        y[:, 3:6] += lfilter([1.0], [1.0, -a], drive, axis=0)
+    dq = so3.quat_exp(torch.from_numpy(rng.normal(scale=n.att, size=(T, 3))))
+    y[:, 6:10] = so3.quat_mul(torch.from_numpy(y[:, 6:10]), dq).numpy()
+    y[:, 10:13] += rng.normal(scale=n.gyro, size=(T, 3))
+    u = u + rng.normal(scale=n.rotor, size=u.shape)
+    acc = acc + rng.normal(scale=n.accel, size=acc.shape)
+    return y, u, acc

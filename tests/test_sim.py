@@ -1,0 +1,242 @@
+"""The flight simulator: references, controller, hidden effects, determinism, oracle."""
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from nanosysid import benchmark, dynamics, sim, so3
+from nanosysid.dataio import write_flight_csv
+from nanosysid.sim import effects as fx
+from nanosysid.sim.simulator import SimConfig, simulate
+from nanosysid.sim.trajectories import Reference, make_reference
+from nanosysid.vehicle import Vehicle
+
+V = Vehicle()
+
+# short flights keep the suite fast; the Melon keeps its geometry and rates
+SHORT = SimConfig.from_mapping({
+    "preroll": 1.0,
+    "trajectories": {"melon": {"duration": 6.0, "circle_time": 4.0, "return_time": 1.5, "ramp_time": 0.15}},
+})
+
+
+def sample(ref, dt=0.01):
+    t = np.arange(0, ref.duration + 1e-9, dt)
+    return (t, *ref.pva(t))
+
+
+# ---- references -------------------------------------------------------------------------
+
+
+def test_square_reference():
+    ref = make_reference("square")
+    t, p, v, a = sample(ref)
+    assert ref.duration == 19.0
+    # rest at the corners: the end of every 1 s move and during the 1 s holds
+    for k in range(9):
+        hold = (t > 2 * k + 1.05) & (t < 2 * k + 1.95)
+        assert np.abs(v[hold]).max() < 1e-9
+    corners = p[np.isin(np.round(t, 2), [1.5, 3.5, 5.5, 7.5])]
+    assert np.allclose(np.abs(corners[:, :2]), 0.5) and np.allclose(corners[:, 2], 1.0)
+    assert np.isclose(p[np.round(t, 2) == 11.5][0, 2], 2.0)  # upper plane 1 m higher
+    assert np.isclose(p[-1, 2], 1.0) and np.allclose(v[-1], 0)  # back at the starting height
+    # minimum snap over 1 m in 1 s: peak speed 35/16 m/s, zero jerk at the ends
+    assert np.isclose(np.linalg.norm(v, axis=1).max(), 35 / 16, rtol=1e-3)
+
+
+def test_random_reference():
+    ref = make_reference("random", box=(1.0, 1.0, 0.5), seed=3)
+    t, p, v, a = sample(ref)
+    assert ref.duration == 60.0
+    knots = p[np.isin(np.round(t, 6), np.round(np.linspace(0, 60, 52), 2))]
+    # waypoints (the knot values) lie in the box centred at (0, 0, 1.5)
+    wps = make_reference("random", box=(1.0, 1.0, 0.5), seed=3).pva(np.linspace(0, 60, 52))[0]
+    assert np.all(np.abs(wps - [0, 0, 1.5]) <= [0.5, 0.5, 0.25])
+    assert len(knots) > 40
+    assert np.allclose(v[0], 0) and np.allclose(v[-1], 0)  # clamped ends
+    same = make_reference("random", box=(1.0, 1.0, 0.5), seed=3).pva(t)[0]
+    other = make_reference("random", box=(1.0, 1.0, 0.5), seed=4).pva(t)[0]
+    assert np.array_equal(same, p) and not np.allclose(other, p)
+
+
+def test_melon_reference():
+    ref = make_reference("melon", ramp_time=0.0)
+    t, p, v, a = sample(ref)
+    assert ref.duration == 65.0
+    circ = t < 55.0
+    d = p[circ] - [0, 0, 1.5]
+    assert np.allclose(np.linalg.norm(d, axis=1), 0.75)  # radius
+    # the circle's plane contains the x axis and turns about it at 0.4 rad/s
+    tt = t[circ][1:]
+    plane_angle = np.arctan2(-d[1:, 1], d[1:, 2])
+    k = np.abs(np.sin(2.5 * tt)) > 0.3
+    assert np.allclose(np.sin(2 * (plane_angle[k] - 0.4 * tt[k])), 0, atol=1e-6)
+    # circling rate 2.5 rad/s: the local angle advances by 2.5 rad per second
+    assert np.isclose(np.arccos(d[100, 0] / 0.75), (2.5 * 1.0) % (2 * np.pi), atol=1e-6) or np.isclose(
+        np.arccos(d[100, 0] / 0.75), 2 * np.pi - (2.5 % (2 * np.pi)), atol=1e-6)
+    assert np.allclose(p[-1], [0, 0, 1.5]) and np.allclose(v[-1], 0)  # back at the centre, at rest
+    assert np.abs(np.diff(v[1:], axis=0)).max() < 0.1  # no velocity jump after the start
+
+
+def test_chirp_reference():
+    ref = make_reference("chirp")
+    t, p, v, a = sample(ref)
+    assert ref.duration == 60.0
+    assert np.allclose(p.max(axis=0) - p.min(axis=0), 1.0, atol=1e-3)  # 0.5 m amplitude per axis
+    # instantaneous frequency from successive minima of x: 0.1 Hz at the start, 0.5 Hz at the end
+    x = p[:, 0]
+    minima = t[1:-1][(x[1:-1] < x[:-2]) & (x[1:-1] <= x[2:])]
+    periods = np.diff(minima)
+    f_mid = 1 / periods
+    t_mid = minima[:-1] + periods / 2
+    assert np.allclose(f_mid, 0.1 + 0.4 * t_mid / 60, rtol=0.02)
+    assert np.allclose(v[0], 0) and np.allclose(v[-1], 0, atol=1e-9)
+
+
+# ---- controller ---------------------------------------------------------------------------
+
+
+def test_controller_hovers_and_tracks_a_step():
+    def pva(t):
+        p = np.where((t < 1.0)[:, None], [0.0, 0.0, 1.0], [0.3, -0.2, 1.2])
+        return p, np.zeros_like(p), np.zeros_like(p)
+
+    step = Reference("step", 5.0, pva)
+    cfg = SimConfig.from_mapping({"preroll": 1.0, "initial_offset": 0.0})
+    f = simulate([("step_t_run1", step, 1)], world=sim.World({}), cfg=cfg, noise=False, progress=False)[0]
+    p = f.y[:, :3]
+    assert np.abs(p[:100] - [0, 0, 1.0]).max() < 1e-3  # hover holds still
+    assert np.abs(p[-50:] - [0.3, -0.2, 1.2]).max() < 0.02  # settled on the step within 4 s
+    overshoot = (p[100:, 0] - 0.3).max()
+    assert overshoot < 0.5 * 0.3
+    tilt = np.degrees(np.arccos(so3.quat_to_rotmat(torch.from_numpy(f.y[:, 6:10]))[:, 2, 2].numpy()))
+    assert tilt.max() < 45
+
+
+# ---- hidden effects -----------------------------------------------------------------------
+
+
+def state(v=(0, 0, 0), w=(0, 0, 0)):
+    x = torch.zeros(1, 13, dtype=torch.float64)
+    x[0, 3:6] = torch.tensor(v, dtype=torch.float64)
+    x[0, 9] = 1.0
+    x[0, 10:13] = torch.tensor(w, dtype=torch.float64)
+    return x
+
+
+HOVER = torch.full((1, 4), V.hover_speed, dtype=torch.float64)
+NO_ACC = torch.zeros(1, 4, dtype=torch.float64)
+
+
+def wrench(name, x=None, om=HOVER, om_dot=NO_ACC):
+    return fx.World({name: 1.0}).wrench(state() if x is None else x, om, om_dot, V)
+
+
+def test_rotor_drag_opposes_body_velocity_with_realistic_size():
+    f, t = wrench("rotor_drag", state(v=(1.0, 0, 0)))
+    # about 0.3 1/s deceleration per m/s at hover: F = -sum(Omega) K_xy v
+    assert f[0, 0] < 0 and 0.005 < -f[0, 0] < 0.05 and abs(f[0, 1]) < 1e-12
+    assert torch.all(t == 0)
+    f2, _ = wrench("rotor_drag", state(v=(2.0, 0, 0)))
+    assert torch.isclose(f2[0, 0], 2 * f[0, 0])  # linear in speed
+
+
+def test_body_drag_is_quadratic():
+    f1, _ = wrench("body_drag", state(v=(0, -1.0, 0)))
+    f2, _ = wrench("body_drag", state(v=(0, -2.0, 0)))
+    assert f1[0, 1] > 0 and torch.isclose(f2[0, 1], 4 * f1[0, 1]) and 1e-4 < f1[0, 1] < 1e-2
+
+
+def test_com_offset_gives_a_thrust_torque():
+    _, t = wrench("com_offset")
+    T = V.mass * V.gravity
+    rx, ry, _ = fx.COM_OFFSET
+    assert torch.allclose(t[0], torch.tensor([-ry * T, rx * T, 0.0], dtype=torch.float64))
+    assert 1e-4 < t[0].norm() < 2e-3  # N m: comparable to the attitude controller's authority
+
+
+def test_motor_asymmetry_keeps_collective_thrust_and_tilts():
+    f, t = wrench("motor_asymmetry")
+    assert abs(f[0, 2]) < 1e-12  # zero-mean spread: hover thrust unchanged
+    d = torch.tensor(fx.MOTOR_ASYMMETRY, dtype=torch.float64)
+    M = dynamics.mixer_matrix(k_f=V.k_f, k_m=V.k_m, arm=V.arm)
+    expected = (HOVER**2 * d) @ M.T
+    assert torch.allclose(t[0], expected[0, 1:]) and t[0, :2].norm() > 5e-5
+
+
+def test_rotor_inertia_yaw_reaction_and_gyroscopic_torque():
+    spin_up = torch.tensor([[1e4, 0, 0, 0]], dtype=torch.float64)  # M1 (counter-clockwise) speeds up
+    _, t = wrench("rotor_inertia", om_dot=spin_up)
+    assert t[0, 2] < 0 and math.isclose(-t[0, 2].item(), fx.ROTOR_INERTIA * 1e4)
+    om = torch.tensor([[2000.0, 1000, 2000, 1000]], dtype=torch.float64)  # net angular momentum along +z
+    _, t = wrench("rotor_inertia", state(w=(1.0, 0, 0)), om=om)
+    h = fx.ROTOR_INERTIA * 2000.0
+    assert torch.allclose(t[0], torch.tensor([0.0, h, 0.0], dtype=torch.float64))  # -w x h
+
+
+def test_telemetry_delay_shifts_recorded_rotor_speeds():
+    f = sim.simulate_flight("melon", 1, effects={"telemetry_delay": 1.0}, noise=False, cfg=SHORT)
+    true = np.column_stack([f.extra[f"true_m{i}_rads"] for i in range(1, 5)])
+    assert np.allclose(f.u[3:], true[:-3])  # 30 ms = 3 samples
+    assert not np.allclose(f.u, true)
+
+
+def test_every_effect_is_visible_to_the_nominal_model():
+    """Noise-free: physics_full is near perfect with no effect, and each effect raises its error."""
+    full, naive = benchmark.model("physics_full"), benchmark.model("naive")
+    worlds = [{}] + [{e: 1.0} for e in sim.EFFECTS]
+    errs = []
+    for w in worlds:
+        f = sim.simulate_flight("melon", 1, effects=w, noise=False, cfg=SHORT)
+        errs.append(benchmark.evaluate(full, [f], horizon=50).mae["p"][49])
+        if not w:
+            assert errs[0] < 0.01 * benchmark.evaluate(naive, [f], horizon=50).mae["p"][49]
+    for e, err in zip(sim.EFFECTS, errs[1:]):
+        assert err > 1.3 * errs[0], f"{e}: {err:.4g} vs {errs[0]:.4g} without effects"
+
+
+# ---- flights, determinism, oracle -----------------------------------------------------------
+
+
+def test_flight_layout_truth_and_noise():
+    f = sim.simulate_flight("square", 2, cfg=SHORT, seed=1)
+    assert len(f) == 1901 and np.isclose(f.t[-1] - f.t[0], 19.0)
+    assert f.name == "square_20250601_run2" and f.trajectory == "square"
+    truth = np.column_stack([f.extra[f"true_{c}"] for c in ("x", "y", "z")])
+    err = f.y[:, :3] - truth
+    assert 1e-4 < err.std() < 2e-3  # measurement noise of about 0.5 mm
+    assert np.allclose(np.linalg.norm(f.y[:, 6:10], axis=1), 1)
+    # the accelerometer measures the specific force: about g along body z in hover
+    assert abs(np.median(f.extra["true_az_body"]) - V.gravity) < 0.5
+
+
+TINY = SimConfig.from_mapping({
+    "preroll": 0.5,
+    "trajectories": {"melon": {"duration": 2.5, "circle_time": 1.5, "return_time": 0.5, "ramp_time": 0.15}},
+})
+
+
+def test_same_seed_same_bytes_and_batch_equals_single(tmp_path):
+    a = sim.simulate_flights({"melon": 2}, seed=5, cfg=TINY, progress=False)
+    b = sim.simulate_flights({"melon": 2}, seed=5, cfg=TINY, progress=False)
+    for x, y in zip(a, b):
+        write_flight_csv(x, tmp_path / "a.csv")
+        write_flight_csv(y, tmp_path / "b.csv")
+        assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    single = sim.simulate_flight("melon", 2, seed=5, cfg=TINY)
+    assert np.allclose(single.y, a[1].y, atol=1e-12) and np.allclose(single.u, a[1].u, atol=1e-9)
+    other = sim.simulate_flight("melon", 2, seed=6, cfg=TINY)
+    assert not np.allclose(other.y, single.y)
+
+
+def test_oracle_is_the_physical_limit():
+    world = {"rotor_drag": 1.0, "com_offset": 1.0, "motor_asymmetry": 1.0}
+    f = sim.simulate_flight("melon", 1, effects=world, noise=False, cfg=SHORT)
+    oracle = benchmark.evaluate(sim.oracle(world), [f])
+    phys = benchmark.evaluate(benchmark.model("physics"), [f])
+    full = benchmark.evaluate(benchmark.model("physics_full"), [f])
+    for k in "pvRw":
+        assert oracle.simerr[k] < 0.2 * min(phys.simerr[k], full.simerr[k])
+    assert benchmark.model("oracle", effects=world)(f.y[:2], f.u[None, :5].repeat(2, 0)).shape == (2, 5, 13)
