@@ -8,7 +8,7 @@ from nanosysid.cli import run_stage
 
 def main(cfg: DictConfig) -> None:
     splitting.split_folder(
-        cfg.data.raw_dir,
+        cfg.data.flights_dir,
         cfg.paths.split,
         train=list(cfg.split.train),
         test=list(cfg.split.test),

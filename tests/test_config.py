@@ -27,7 +27,7 @@ def test_every_model_config_composes_and_builds(name):
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "data").glob("*.yaml")))
 def test_every_data_config_composes(name):
     cfg = yaml.safe_load(config.compose_text([f"data={name}"], conf_dir=ROOT / "conf"))
-    assert cfg["data"]["raw_dir"]
+    assert cfg["data"]["flights_dir"] and cfg["data"]["source"] == name
 
 
 def test_each_model_has_its_own_key_and_the_vehicle_is_resolved():

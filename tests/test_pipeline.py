@@ -18,23 +18,24 @@ def tiny(tmp_path, *extra):
     """Stage arguments for a tiny synthetic case in tmp_path: a composed params file plus overrides."""
     params = tmp_path / "params.yaml"
     if not params.exists():
-        config.compose(["data=synthetic"], out=params, conf_dir=ROOT / "conf")
+        config.compose(["sim.generator=synthetic"], out=params, conf_dir=ROOT / "conf")
     return [
         "--params", str(params),
-        f"data.raw_dir={tmp_path / 'raw'}",
+        f"sim.out_dir={tmp_path / 'raw'}",
+        f"data.flights_dir={tmp_path / 'raw'}",
         f"paths.split={tmp_path / 'split'}",
         f"paths.eval={tmp_path / 'eval'}",
         f"paths.sim_report={tmp_path / 'sim'}",
-        "data.samples=150",
-        "data.runs={square: 1, random: 0, chirp: 1, melon: 2}",
+        "sim.synthetic.samples=150",
+        "sim.runs={square: 1, random: 0, chirp: 1, melon: 2}",
         *extra,
     ]
 
 
 def test_stages_on_a_tiny_case(tmp_path):
     assert run_stage(simulate.main, description="", argv=tiny(tmp_path)) == 0
-    assert sorted(p.name for p in (tmp_path / "raw").glob("*.csv")) == [
-        "chirp_20250101_run1.csv", "melon_20250101_run1.csv", "melon_20250101_run2.csv", "square_20250101_run1.csv"
+    assert sorted(p.name for p in (tmp_path / "raw").rglob("*.csv")) == [
+        "chirp_20250601_run1.csv", "melon_20250601_run1.csv", "melon_20250601_run2.csv", "square_20250601_run1.csv"
     ]
     assert run_stage(split.main, description="", argv=tiny(tmp_path)) == 0
     summary = json.loads((tmp_path / "split" / "split.json").read_text())
@@ -44,7 +45,7 @@ def test_stages_on_a_tiny_case(tmp_path):
         assert run_stage(evaluate.main, description="", name_arg="model", argv=[model, *tiny(tmp_path)]) == 0
         m = json.loads((tmp_path / "eval" / model / "metrics.json").read_text())
         assert m["n_windows"] == 2 * (150 - 50) and len(m["mae"]["p"]) == 50
-        assert set(m["per_flight"]) == {"melon_20250101_run1", "melon_20250101_run2"}
+        assert set(m["per_flight"]) == {"melon_20250601_run1", "melon_20250601_run2"}
         scores[model] = m["simerr"]
         table = (tmp_path / "eval" / model / "table.md").read_text()
         assert f"| {model} |" in table
@@ -58,10 +59,10 @@ def test_simulate_stage_writes_the_published_layout_and_statistics(tmp_path):
     params = tmp_path / "params.yaml"
     config.compose([], out=params, conf_dir=ROOT / "conf")  # the default data: the simulator
     args = [
-        "--params", str(params), f"data.raw_dir={tmp_path / 'raw'}", f"paths.sim_report={tmp_path / 'sim'}",
-        "data.runs={square: 0, random: 0, chirp: 1, melon: 1}", "data.sim.preroll=0.5",
-        "data.sim.trajectories.chirp.duration=2.0",
-        "data.sim.trajectories.melon={duration: 2.0, circle_time: 1.0, return_time: 0.5}",
+        "--params", str(params), f"sim.out_dir={tmp_path / 'raw'}", f"paths.sim_report={tmp_path / 'sim'}",
+        "sim.runs={square: 0, random: 0, chirp: 1, melon: 1}", "sim.flight.preroll=0.5",
+        "sim.flight.trajectories.chirp.duration=2.0",
+        "sim.flight.trajectories.melon={duration: 2.0, circle_time: 1.0, return_time: 0.5}",
     ]
     assert run_stage(simulate.main, description="", argv=args) == 0
     files = sorted(str(p.relative_to(tmp_path / "raw")) for p in (tmp_path / "raw").rglob("*.csv"))
@@ -74,7 +75,7 @@ def test_failing_split_keeps_previous_output_and_names_the_file(tmp_path, capsys
     assert run_stage(simulate.main, description="", argv=tiny(tmp_path)) == 0
     assert run_stage(split.main, description="", argv=tiny(tmp_path)) == 0
     before = sorted(p.relative_to(tmp_path) for p in (tmp_path / "split").rglob("*"))
-    bad = tmp_path / "raw" / "melon_20250101_run2.csv"
+    bad = tmp_path / "raw" / "test" / "melon_20250601_run2.csv"
     bad.write_text(bad.read_text().replace("\n", "\n,,,\n", 1))
     assert run_stage(split.main, description="", argv=tiny(tmp_path)) == 2
     err = capsys.readouterr().err
@@ -118,7 +119,8 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     sh("git", "init", "-q")
     sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "add", "-A")
     sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "base")
-    small = ["-S", "data=synthetic", "-S", "data.samples=120", "-S", "data.runs={square: 1, random: 0, chirp: 0, melon: 1}"]
+    small = ["-S", "sim.generator=synthetic", "-S", "sim.synthetic.samples=120",
+             "-S", "sim.runs={square: 1, random: 0, chirp: 0, melon: 1}"]
     out = sh("dvc", "exp", "run", *small)
     assert "Running stage 'evaluate@physics'" in out and "Running stage 'evaluate@naive'" in out
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=2")

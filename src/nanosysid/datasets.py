@@ -22,43 +22,43 @@ def flight_names(runs: dict[str, int], date: str) -> list[str]:
 
 
 def write_default_dataset(cfg: DictConfig) -> list[Path]:
-    """Generate the flights of ``cfg.data`` into ``cfg.data.raw_dir`` (replaced atomically).
+    """Generate the flights of ``cfg.sim`` into ``cfg.sim.out_dir`` (replaced atomically).
 
-    Simulated flights go to ``train/`` and ``test/`` by the split lists, as in the published
-    layout, and their trajectory statistics to ``<paths.sim_report>/stats.md``.
+    Flights go to ``train/`` and ``test/`` by the split lists, as in the published layout,
+    and their trajectory statistics to ``<paths.sim_report>/stats.md``.
     """
     from nanosysid.sim.stats import stats_markdown, trajectory_stats
 
-    data = cfg.data
-    parts: dict[str, str] = {}
-    if data.source == "sim":
+    s = cfg.sim
+    vehicle = Vehicle.from_mapping(cfg.vehicle)
+    if s.generator == "flight":
         from nanosysid import sim
 
         flights = sim.simulate_flights(
-            dict(data.runs),
-            effects=dict(data.effects),
+            dict(s.runs),
+            effects=dict(s.effects),
             seed=int(cfg.seed),
-            cfg=sim.SimConfig.from_mapping(OmegaConf.to_container(data.sim, resolve=True)),
-            vehicle=Vehicle.from_mapping(cfg.vehicle),
-            date=str(data.date),
+            cfg=sim.SimConfig.from_mapping(OmegaConf.to_container(s.flight, resolve=True)),
+            vehicle=vehicle,
+            date=str(s.date),
         )
-        parts = {t: "train" for t in cfg.split.train} | {t: "test" for t in cfg.split.test}
-    elif data.source == "synthetic":
+    elif s.generator == "synthetic":
         from nanosysid.synthetic import synthetic_flights
 
         flights = synthetic_flights(
-            flight_names(dict(data.runs), str(data.date)),
-            int(data.samples),
-            vehicle=Vehicle.from_mapping(cfg.vehicle),
-            substeps=int(data.substeps),
-            noise=float(data.noise),
+            flight_names(dict(s.runs), str(s.date)),
+            int(s.synthetic.samples),
+            vehicle=vehicle,
+            substeps=int(s.synthetic.substeps),
+            noise=float(s.synthetic.noise),
             seed=int(cfg.seed),
         )
     else:
-        raise ConfigError(f"data.source: unknown source {data.source!r} (known: sim, synthetic)")
+        raise ConfigError(f"sim.generator: unknown generator {s.generator!r} (known: flight, synthetic)")
+    parts = {t: "train" for t in cfg.split.train} | {t: "test" for t in cfg.split.test}
     with atomic_file(Path(cfg.paths.sim_report) / "stats.md") as tmp:
         tmp.write_text(stats_markdown(trajectory_stats(flights)))
-    out = Path(data.raw_dir)
+    out = Path(s.out_dir)
     with atomic_dir(out) as tmp:
         for f in flights:
             write_flight_csv(f, tmp / parts.get(f.trajectory, "") / f"{f.name}.csv")
