@@ -6,6 +6,7 @@ import logging
 from pathlib import Path
 
 from omegaconf import DictConfig, OmegaConf
+from tqdm.auto import tqdm
 
 from nanosysid.config import ConfigError
 from nanosysid.dataio import atomic_dir, atomic_file, write_flight_csv
@@ -21,46 +22,39 @@ def flight_names(runs: dict[str, int], date: str) -> list[str]:
     return [f"{traj}_{date}_run{k}" for traj, n in runs.items() for k in range(1, n + 1)]
 
 
-def write_default_dataset(cfg: DictConfig) -> list[Path]:
-    """Generate the flights of ``cfg.sim`` into ``cfg.sim.out_dir`` (replaced atomically).
+def write_default_dataset(cfg: DictConfig) -> Path:
+    """Simulate the flights of ``cfg.sim`` and record them into ``cfg.sim.out_dir`` (replaced atomically).
 
-    Flights go to ``train/`` and ``test/`` by the split lists, as in the published layout,
-    and their trajectory statistics to ``<paths.sim_report>/stats.md``.
+    Writes ``bags/<flight>/`` (a ROS 2 bag per flight, as the real rig records), the truth
+    beside each bag (``bags/<flight>.truth.parquet`` and ``.truth.json``), and the simulator's
+    direct 100 Hz output in the published layout (``csv/train``, ``csv/test``, by the split
+    lists); the trajectory statistics go to ``<paths.sim_report>/stats.md``.
     """
+    from nanosysid import sim
+    from nanosysid.recording.recorder import RecorderConfig, record_flight
+    from nanosysid.sim.simulator import flights_from_record, simulate_raw
     from nanosysid.sim.stats import stats_markdown, trajectory_stats
 
     s = cfg.sim
     vehicle = Vehicle.from_mapping(cfg.vehicle)
-    if s.generator == "flight":
-        from nanosysid import sim
-
-        flights = sim.simulate_flights(
-            dict(s.runs),
-            effects=dict(s.effects),
-            seed=int(cfg.seed),
-            cfg=sim.SimConfig.from_mapping(OmegaConf.to_container(s.flight, resolve=True)),
-            vehicle=vehicle,
-            date=str(s.date),
-        )
-    elif s.generator == "synthetic":
-        from nanosysid.synthetic import synthetic_flights
-
-        flights = synthetic_flights(
-            flight_names(dict(s.runs), str(s.date)),
-            int(s.synthetic.samples),
-            vehicle=vehicle,
-            substeps=int(s.synthetic.substeps),
-            noise=float(s.synthetic.noise),
-            seed=int(cfg.seed),
-        )
-    else:
-        raise ConfigError(f"sim.generator: unknown generator {s.generator!r} (known: flight, synthetic)")
+    world = sim.World(dict(s.effects))
+    sim_cfg = sim.SimConfig.from_mapping(OmegaConf.to_container(s.flight, resolve=True))
+    specs = [(name, name.split("_")[0], int(name.rsplit("run", 1)[1])) for name in flight_names(dict(s.runs), str(s.date))]
+    if not specs:
+        raise ConfigError("sim.runs: no flight to simulate")
+    raw = simulate_raw(specs, world=world, vehicle=vehicle, cfg=sim_cfg, seed=int(cfg.seed))
+    flights = flights_from_record(raw, world=world, vehicle=vehicle, cfg=sim_cfg)
     parts = {t: "train" for t in cfg.split.train} | {t: "test" for t in cfg.split.test}
-    with atomic_file(Path(cfg.paths.sim_report) / "stats.md") as tmp:
-        tmp.write_text(stats_markdown(trajectory_stats(flights)))
+    topics = OmegaConf.to_container(cfg.recording.topics, resolve=True)
+    rec_cfg = RecorderConfig.from_mapping(OmegaConf.to_container(s.recorder, resolve=True))
     out = Path(s.out_dir)
     with atomic_dir(out) as tmp:
-        for f in flights:
-            write_flight_csv(f, tmp / parts.get(f.trajectory, "") / f"{f.name}.csv")
-    log.info("wrote %d flights to %s", len(flights), out)
-    return sorted(out.rglob("*.csv"))
+        (tmp / "bags").mkdir()
+        for i, f in enumerate(tqdm(flights, desc="record", unit="bag", disable=None)):
+            record_flight(raw, i, tmp / "bags" / f.name, topics=topics, cfg=rec_cfg, noise=sim_cfg.noise,
+                          world=world, vehicle=vehicle, seed=int(cfg.seed))
+            write_flight_csv(f, tmp / "csv" / parts.get(f.trajectory, "") / f"{f.name}.csv")
+    with atomic_file(Path(cfg.paths.sim_report) / "stats.md") as f:
+        f.write_text(stats_markdown(trajectory_stats(flights)))
+    log.info("simulated and recorded %d flights into %s", len(flights), out)
+    return out

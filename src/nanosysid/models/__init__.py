@@ -34,11 +34,12 @@ def _physics(*, angular_dynamics: bool, name: str) -> Callable:
     return build
 
 
-def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: float = 0.01) -> Callable:
+def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: float = 0.01,
+            rotor_delay: float | None = None) -> Callable:
     from nanosysid import sim
 
     eff = None if effects is None else dict(effects)
-    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt)
+    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay)
 
 
 MODEL_KINDS: dict[str, Callable[..., Callable]] = {

@@ -60,6 +60,11 @@ def simulate_flight(
 
 
 def oracle(effects: Mapping[str, float] | None = None, *, vehicle: Vehicle | None = None, substeps: int = 4,
-           dt: float = 0.01) -> Oracle:
-    """A predictor for :func:`nanosysid.benchmark.evaluate` with the true dynamics of the world."""
-    return Oracle(_world(effects), vehicle, dt=dt, substeps=substeps)
+           dt: float = 0.01, rotor_delay: float | None = None) -> Oracle:
+    """A predictor for :func:`nanosysid.benchmark.evaluate` with the true dynamics of the world.
+
+    ``rotor_delay`` (s) is the delay of the rotor speeds in the data behind the true ones; by
+    default the ``telemetry_delay`` effect's, as in the simulator's direct output. Flights from
+    the data pipeline have the motor stream aligned already: 0.
+    """
+    return Oracle(_world(effects), vehicle, dt=dt, substeps=substeps, rotor_delay=rotor_delay)

@@ -25,8 +25,12 @@ __all__ = ["Oracle"]
 class Oracle:
     """``predict(y0 (B, 13), u (B, H, 4)) -> (B, H, 13)`` with the true dynamics of ``world``."""
 
-    def __init__(self, world: World, vehicle: Vehicle | None = None, *, dt: float = 0.01, substeps: int = 4) -> None:
+    def __init__(self, world: World, vehicle: Vehicle | None = None, *, dt: float = 0.01, substeps: int = 4,
+                 rotor_delay: float | None = None) -> None:
         self.world = world
+        # delay (s) of the rotor speeds in u behind the true ones: the telemetry_delay effect for
+        # the simulator's direct output, 0 after the data pipeline has aligned the motor stream
+        self.rotor_delay = world.telemetry_delay if rotor_delay is None else rotor_delay
         self.vehicle = vehicle or Vehicle()
         self.dt = dt
         self.substeps = substeps
@@ -34,7 +38,7 @@ class Oracle:
 
     def _true_rotor_speeds(self, u: Tensor) -> Tensor:
         """Undo the telemetry delay: the true speed at sample h was recorded at h + delay."""
-        shift = self.world.telemetry_delay / self.dt
+        shift = self.rotor_delay / self.dt
         if shift == 0:
             return u
         H = u.shape[1]

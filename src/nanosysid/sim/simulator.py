@@ -16,6 +16,7 @@ from typing import Any, Mapping
 
 import numpy as np
 import torch
+import torch.nn.functional as F
 from scipy.signal import lfilter
 from tqdm.auto import tqdm
 
@@ -26,7 +27,7 @@ from nanosysid.sim.effects import World
 from nanosysid.sim.trajectories import Reference, make_reference
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["SimConfig", "NoiseConfig", "simulate", "TRUTH_COLUMNS"]
+__all__ = ["SimConfig", "NoiseConfig", "RawRecord", "simulate", "simulate_raw", "flights_from_record", "TRUTH_COLUMNS"]
 
 log = logging.getLogger(__name__)
 
@@ -64,6 +65,7 @@ class SimConfig:
     omega_min: float = 500.0  # rad/s, idle
     omega_max: float = 2900.0  # rad/s
     preroll: float = 2.0  # s of hover before the trajectory starts
+    postroll: float = 1.0  # s simulated after the longest trajectory ends (recorded streams trail the flight)
     initial_offset: float = 0.02  # m, std of the initial position offset
     waypoint_seed: int = 7  # seed of the Random waypoints, shared by its runs
     feedforward: float = 0.85  # share of the velocity and acceleration setpoints sent to the controller
@@ -89,25 +91,47 @@ def _trajectory_options(cfg: SimConfig, name: str) -> dict[str, Any]:
     return opts
 
 
-def simulate(
+@dataclass
+class RawRecord:
+    """The truth of a batch of flights at the physics rate, before any sensor.
+
+    Attributes:
+        names, trajectories, runs: One entry per flight.
+        t: Time ``(N,)`` in s; 0 is the start of the trajectories, negative in the pre-roll.
+        x: States ``(B, N, 13)``.
+        omega: Rotor speeds ``(B, N, 4)`` (rad/s) and ``omega_dot`` their rates (rad/s^2).
+        wrench: Body-frame force (N) and torque (N m) ``(B, N, 6)``, rotors and effects together.
+        p_ref: Position setpoints ``(B, N, 3)`` (m), held between control instants.
+        durations: Trajectory durations (s).
+    """
+
+    names: list[str]
+    trajectories: list[str]
+    runs: list[int]
+    t: np.ndarray
+    x: np.ndarray
+    omega: np.ndarray
+    omega_dot: np.ndarray
+    wrench: np.ndarray
+    p_ref: np.ndarray
+    durations: list[float]
+    rngs: list[np.random.Generator]
+
+
+def simulate_raw(
     flights: list[tuple[str, str | Reference, int]],
     *,
     world: World,
     vehicle: Vehicle | None = None,
     cfg: SimConfig | None = None,
     seed: int = 0,
-    noise: bool = True,
     progress: bool = True,
-) -> list[Flight]:
-    """Simulate flights given as ``(name, trajectory, run)``; the trajectory is a name or a
-    :class:`~nanosysid.sim.trajectories.Reference`.
+) -> RawRecord:
+    """Simulate flights given as ``(name, trajectory, run)`` and keep the physics-rate truth.
 
-    A flight's random draws (initial offset, noise) depend only on ``(seed, trajectory, run)``,
-    so it comes out the same alone or in a batch.
-
-    Returns:
-        One :class:`Flight` per entry: the published columns (measured, with noise) and the
-        truth in ``true_*`` extras (outputs, rotor speeds, specific force, body force and torque).
+    The trajectory is a name or a :class:`~nanosysid.sim.trajectories.Reference`. A flight's
+    random draws depend only on ``(seed, trajectory, run)``, so it comes out the same alone or
+    in a batch.
     """
     vehicle = vehicle or Vehicle()
     cfg = cfg or SimConfig()
@@ -117,15 +141,11 @@ def simulate(
 
     dt = 1.0 / cfg.physics_rate
     ctrl_every = round(cfg.physics_rate / cfg.control_rate)
-    out_every = round(cfg.physics_rate / cfg.output_rate)
-    n_pre = round(cfg.preroll * cfg.output_rate)  # output samples in the pre-roll
-    durations = [r.duration for r in refs]
-    n_out = [round(d * cfg.output_rate) + 1 for d in durations]
-    n_total_out = n_pre + max(n_out)
-    n_steps = (n_total_out - 1) * out_every + 1
+    n_pre = round(cfg.preroll * cfg.physics_rate)
+    n_steps = n_pre + round((max(r.duration for r in refs) + cfg.postroll) * cfg.physics_rate) + 1
 
     # setpoints at every control instant, (B, Nc, 3) each
-    t_ctrl = (np.arange(0, n_steps, ctrl_every) * dt) - cfg.preroll
+    t_ctrl = np.arange(0, n_steps, ctrl_every) * dt - cfg.preroll
     pva = [r.pva(t_ctrl) for r in refs]
     p_ref, v_ref, a_ref = (torch.from_numpy(np.stack([x[i] for x in pva])) for i in range(3))
     v_ref, a_ref = v_ref * cfg.feedforward, a_ref * cfg.feedforward
@@ -140,63 +160,97 @@ def simulate(
     base = functools.partial(dynamics.quad_dynamics, **vehicle.dynamics_kwargs())
     has_wrench = any(world.s(k) for k in world.strengths if k != "telemetry_delay")
 
-    def rotor_state_deriv(z: torch.Tensor, cmd: torch.Tensor):
+    def deriv(z: torch.Tensor, cmd: torch.Tensor) -> torch.Tensor:
         om = z[:, 13:]
         om_dot = (cmd - om) / cfg.motor_tau
         force, torque = world.wrench(z[:, :13], om, om_dot, vehicle) if has_wrench else (None, None)
-        return om, om_dot, force, torque
-
-    def deriv(z: torch.Tensor, cmd: torch.Tensor) -> torch.Tensor:
-        om, om_dot, force, torque = rotor_state_deriv(z, cmd)
         return torch.cat((base(z[:, :13], om, force_body=force, torque_body=torque), om_dot), dim=-1)
 
-    rec_x = torch.empty(B, n_total_out, 17, dtype=torch.float64)
-    rec_w = torch.empty(B, n_total_out, 6, dtype=torch.float64)  # body force (N) and torque (N m)
-    cmd = None
-    k_out = 0
+    rec = torch.empty(B, n_steps, 21, dtype=torch.float64)  # state (17) and rotor command (4)
     bar = tqdm(total=n_steps, desc=f"simulate {B} flights", unit="step", unit_scale=True,
                disable=not progress, mininterval=1.0)
     for k in range(n_steps):
         if k % ctrl_every == 0:
             j = k // ctrl_every
             cmd, cstate = ctrl(x[:, :13], p_ref[:, j], v_ref[:, j], a_ref[:, j], cstate)
-        if k % out_every == 0:
-            om, om_dot, force, torque = rotor_state_deriv(x, cmd)
-            thrust, tau = dynamics.rotor_wrench(om, k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm)
-            f_b = torch.stack((torch.zeros_like(thrust), torch.zeros_like(thrust), thrust), -1)
-            if force is not None:
-                f_b, tau = f_b + force, tau + torque
-            rec_x[:, k_out] = x
-            rec_w[:, k_out] = torch.cat((f_b, tau), -1)
-            k_out += 1
-            if k_out == n_total_out:
-                break
+        rec[:, k, :17] = x
+        rec[:, k, 17:] = cmd
         x = dynamics.rk4_step(deriv, x, cmd, dt)
         x[:, 6:10] = so3.quat_normalize(x[:, 6:10])
-        if k % 1000 == 0:
-            bar.update(min(1000, n_steps - bar.n))
+        if k % 1000 == 999:
+            bar.update(1000)
+    bar.update(n_steps - bar.n)
     bar.close()
-    if not torch.isfinite(rec_x).all():
+    if not torch.isfinite(rec).all():
         raise RuntimeError("simulation diverged (non-finite state); check the controller gains and motor model")
 
+    # forces and torques of the whole record at once, with the same functions as the loop
+    xs, om, cmd_rec = rec[..., :13], rec[..., 13:17], rec[..., 17:]
+    om_dot = (cmd_rec - om) / cfg.motor_tau
+    thrust, tau = dynamics.rotor_wrench(om, k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm)
+    f_b = F.pad(thrust.unsqueeze(-1), (2, 0))
+    if has_wrench:
+        force, torque = world.wrench(xs, om, om_dot, vehicle)
+        f_b, tau = f_b + force, tau + torque
+    p_hold = p_ref.repeat_interleave(ctrl_every, dim=1)[:, :n_steps]
+    return RawRecord(
+        names=[n for n, _, _ in flights],
+        trajectories=[r.name for r in refs],
+        runs=[run for _, _, run in flights],
+        t=np.arange(n_steps) * dt - cfg.preroll,
+        x=xs.numpy(),
+        omega=om.numpy(),
+        omega_dot=om_dot.numpy(),
+        wrench=torch.cat((f_b, tau), -1).numpy(),
+        p_ref=p_hold.numpy(),
+        durations=[r.duration for r in refs],
+        rngs=rngs,
+    )
+
+
+def simulate(
+    flights: list[tuple[str, str | Reference, int]],
+    *,
+    world: World,
+    vehicle: Vehicle | None = None,
+    cfg: SimConfig | None = None,
+    seed: int = 0,
+    noise: bool = True,
+    progress: bool = True,
+) -> list[Flight]:
+    """Simulate flights given as ``(name, trajectory, run)`` and sample them at the output rate.
+
+    Returns:
+        One :class:`Flight` per entry: the published columns (measured, with noise) and the
+        truth in ``true_*`` extras (outputs, rotor speeds, specific force, body force and torque).
+    """
+    vehicle = vehicle or Vehicle()
+    cfg = cfg or SimConfig()
+    raw = simulate_raw(flights, world=world, vehicle=vehicle, cfg=cfg, seed=seed, progress=progress)
+    return flights_from_record(raw, world=world, vehicle=vehicle, cfg=cfg, noise=noise)
+
+
+def flights_from_record(raw: RawRecord, *, world: World, vehicle: Vehicle, cfg: SimConfig, noise: bool = True
+                        ) -> list[Flight]:
+    """Sample a raw record at the output rate, with the telemetry delay and measurement noise."""
+    every = round(cfg.physics_rate / cfg.output_rate)
+    start = int(np.argmin(np.abs(raw.t)))
     out = []
-    t_full = np.arange(n_total_out) / cfg.output_rate - cfg.preroll
-    for i, (name, _, _) in enumerate(flights):
-        sl = slice(n_pre, n_pre + n_out[i])
-        xs = rec_x[i].numpy()
-        wr = rec_w[i].numpy()
-        y_true = xs[sl, :13]
-        omega_true = xs[sl, 13:]
+    for i, name in enumerate(raw.names):
+        n = round(raw.durations[i] * cfg.output_rate) + 1
+        idx = start + every * np.arange(n)
+        y_true = raw.x[i, idx]
+        omega_true = raw.omega[i, idx]
         # recorded rotor speeds lag the true ones: sample the true history d seconds earlier
-        u_rec = _delayed(t_full, xs[:, 13:], t_full[sl] - world.telemetry_delay)
-        acc_true = wr[sl, :3] / vehicle.mass  # specific force in the body frame (accelerometer)
+        u_rec = _delayed(raw.t, raw.omega[i], raw.t[idx] - world.telemetry_delay)
+        acc_true = raw.wrench[i, idx, :3] / vehicle.mass  # specific force in the body frame
         y, u, acc = y_true.copy(), u_rec, acc_true.copy()
         if noise:
-            y, u, acc = _add_noise(y, u, acc, cfg.noise, rngs[i], 1.0 / cfg.output_rate)
+            y, u, acc = _add_noise(y, u, acc, cfg.noise, raw.rngs[i], 1.0 / cfg.output_rate)
         extra = {c: acc[:, j] for j, c in enumerate(ACCEL_COLUMNS)}
-        truth = np.concatenate((omega_true, y_true, acc_true, wr[sl]), axis=1)
+        truth = np.concatenate((omega_true, y_true, acc_true, raw.wrench[i, idx]), axis=1)
         extra.update({c: truth[:, j].copy() for j, c in enumerate(TRUTH_COLUMNS)})
-        out.append(Flight(name=name, t=np.round(t_full[sl], 10), u=u, y=y, extra=extra))
+        out.append(Flight(name=name, t=np.round(raw.t[idx], 10), u=u, y=y, extra=extra))
     return out
 
 

@@ -1,0 +1,235 @@
+"""sync: bring the streams of one flight onto one clock and one uniform 100 Hz grid.
+
+The paper's method (section Data Preprocessing), in order:
+
+1. Clocks against the host. For every stream, the receive time is the source stamp mapped to
+   host time plus a latency that is never negative; the lower envelope of ``t_recv - t_src``
+   over one-second bins, fitted by a line, gives each clock's offset and drift (jitter only
+   ever adds delay, so the envelope is the clean relation).
+2. Motion capture against the STM32 clock. Mapped through the host first, then refined by
+   the lag that maximises the cross-correlation of the mocap and onboard positions, averaged
+   over x, y and z (the paper's method); this removes the difference of the latencies.
+3. Motor telemetry against the accelerometer: the lag that maximises the cross-correlation of
+   ``a_z`` with the sum of squared rotor speeds, then the motor stamps are moved by it.
+4. The flight segment: where the host's position setpoint is non-zero, mapped to STM32 time.
+5. Resampling to the 100 Hz grid of the STM32 clock: nearest neighbour for the onboard streams
+   (retiming, which also fills lost packets with the closest measurement), interpolation for
+   the motion capture. A mask marks the samples with no measurement of their own.
+
+Lags are searched on a 2 ms grid with parabolic refinement of the correlation peak.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any, Mapping
+
+import numpy as np
+import pandas as pd
+from scipy.signal import butter, sosfiltfilt
+from scipy.spatial.transform import Rotation, Slerp
+
+from nanosysid.dataio import DataError
+
+__all__ = ["SyncConfig", "sync_flight", "clock_fit", "xcorr_lag"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SyncConfig:
+    rate: float = 100.0  # Hz, output grid on the STM32 clock
+    max_lag: float = 0.3  # s, search range of the cross-correlations
+    # both signals of a cross-correlation are high-passed first: the slow motion of the
+    # trajectory carries components that are not pure delays (drag, which follows velocity,
+    # in a_z), and they would bias the peak; the fast fluctuations carry the delay alone
+    xcorr_highpass: float = 1.0  # Hz
+    xcorr_step: float = 0.002  # s, grid of the cross-correlations
+    min_samples: int = 51  # a flight needs at least one window (H + 1)
+    warn_loss: float = 0.10  # warn above this share of missing samples in a stream
+    warn_gap: int = 10  # warn when a stream misses more than this many samples in a row
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any]) -> "SyncConfig":
+        return cls(**dict(cfg))
+
+
+def clock_fit(t_src: np.ndarray, t_recv: np.ndarray) -> tuple[float, float]:
+    """``t_recv ≈ t_src * (1 + drift) + offset`` on the lower envelope; returns (drift, offset)."""
+    d = t_recv - t_src
+    bins = np.floor((t_src - t_src[0]) / 1.0).astype(int)
+    order = np.lexsort((d, bins))
+    first = np.r_[True, np.diff(bins[order]) != 0]
+    idx = order[first]  # the least delayed sample of every 1 s bin
+    if len(idx) < 2:
+        return 0.0, float(d.min())
+    drift, offset = np.polyfit(t_src[idx] - t_src[0], d[idx], 1)
+    return float(drift), float(offset - drift * t_src[0])
+
+
+def xcorr_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: float, highpass: float = 0.0) -> float:
+    """Lag (s) by which ``b`` follows ``a``: ``b(t) ≈ a(t - lag)``; both on one grid of step dt.
+
+    With ``highpass`` (Hz), both signals are high-passed (zero phase) before correlating.
+    """
+    if highpass > 0:
+        sos = butter(2, highpass, "highpass", fs=1.0 / dt, output="sos")
+        a, b = sosfiltfilt(sos, a), sosfiltfilt(sos, b)
+    a = a - a.mean()
+    b = b - b.mean()
+    n = len(a)
+    m = int(round(max_lag / dt))
+    size = 1 << int(np.ceil(np.log2(2 * n)))
+    spec = np.fft.rfft(b, size) * np.conj(np.fft.rfft(a, size))
+    cc = np.fft.irfft(spec, size)
+    lags = np.r_[np.arange(0, m + 1), np.arange(-m, 0)]
+    vals = cc[lags % size]
+    k = int(np.argmax(vals))
+    lag = float(lags[k])
+    # parabolic refinement around the peak
+    if 0 < k < len(vals) - 1 and lags[k - 1] == lags[k] - 1 and lags[k + 1] == lags[k] + 1:
+        y0, y1, y2 = vals[k - 1], vals[k], vals[k + 1]
+        den = y0 - 2 * y1 + y2
+        if den != 0:
+            lag += 0.5 * (y0 - y2) / den
+    return lag * dt
+
+
+def _grid_nearest(t_src: np.ndarray, t: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the nearest source sample for every grid time, and the mask of grid times
+    with no source sample within half a period."""
+    j = np.clip(np.searchsorted(t_src, t), 1, len(t_src) - 1)
+    left_closer = (t - t_src[j - 1]) <= (t_src[j] - t)
+    j = np.where(left_closer, j - 1, j)
+    missing = np.abs(t_src[j] - t) > 0.5 * period + 1e-9
+    return j, missing
+
+
+def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig) -> tuple[pd.DataFrame, dict]:
+    """Synchronise and resample the streams of one flight.
+
+    Returns:
+        The flight on its 100 Hz grid (published columns plus ``miss_*`` masks), and a report
+        with the estimated clock relations, lags and losses.
+
+    Raises:
+        DataError: streams that never overlap, no flight segment, or a segment shorter than
+            ``cfg.min_samples``.
+    """
+    period = 1.0 / cfg.rate
+    mocap, odom, imu, motors, setp = (tables[k] for k in ("mocap", "odom", "imu", "motors", "setpoint"))
+    report: dict[str, Any] = {"flight": name}
+
+    # 1. clocks against the host
+    onboard = pd.concat([odom[["t_src", "t_recv"]], imu[["t_src", "t_recv"]]]).sort_values("t_src")
+    stm_drift, stm_off = clock_fit(onboard["t_src"].to_numpy(), onboard["t_recv"].to_numpy())
+    mc_drift, mc_off = clock_fit(mocap["t_src"].to_numpy(), mocap["t_recv"].to_numpy())
+
+    def stm_to_host(t):
+        return t * (1 + stm_drift) + stm_off
+
+    def host_to_stm(h):
+        return (h - stm_off) / (1 + stm_drift)
+
+    # 2. mocap to STM32 time: through the host, then by position cross-correlation
+    t_mc_coarse = host_to_stm(mocap["t_src"].to_numpy() * (1 + mc_drift) + mc_off)
+    t_od = odom["t_src"].to_numpy()
+    lo, hi = max(t_mc_coarse[0], t_od[0]), min(t_mc_coarse[-1], t_od[-1])
+    if hi - lo < 2 * cfg.max_lag + 1.0:
+        raise DataError(f"{name}: the motion capture and the onboard streams never overlap in time "
+                        f"(mocap {t_mc_coarse[0]:.2f}..{t_mc_coarse[-1]:.2f} s, onboard {t_od[0]:.2f}..{t_od[-1]:.2f} s "
+                        "on the STM32 clock)")
+    tf = np.arange(lo, hi, cfg.xcorr_step)
+    lags = []
+    for c in "xyz":
+        a = np.interp(tf, t_od, odom[c].to_numpy())
+        b = np.interp(tf, t_mc_coarse, mocap[c].to_numpy())
+        # mocap mapped coarsely trails the onboard estimate by the latency difference
+        lags.append(float(xcorr_lag(a, b, cfg.xcorr_step, cfg.max_lag, cfg.xcorr_highpass)))
+    mocap_lag = float(np.mean(lags))
+    t_mc = t_mc_coarse - mocap_lag
+    report["mocap_lag_axes"] = lags
+
+    # 3. motors against the accelerometer
+    t_imu = imu["t_src"].to_numpy()
+    t_mot = motors["t_src"].to_numpy()
+    lo, hi = max(t_imu[0], t_mot[0]), min(t_imu[-1], t_mot[-1])
+    if hi - lo < 2 * cfg.max_lag + 1.0:
+        raise DataError(f"{name}: the motor telemetry and the IMU never overlap in time")
+    tf = np.arange(lo, hi, cfg.xcorr_step)
+    m2 = motors[["m1", "m2", "m3", "m4"]].to_numpy()
+    valid = ~np.isnan(m2).any(axis=1)
+    thrust_proxy = np.interp(tf, t_mot[valid], (m2[valid] ** 2).sum(axis=1))
+    az = np.interp(tf, t_imu, imu["az"].to_numpy())
+    motor_lag = xcorr_lag(az, thrust_proxy, cfg.xcorr_step, cfg.max_lag, cfg.xcorr_highpass)
+    t_mot = t_mot - motor_lag
+
+    # 4. flight segment from the setpoints
+    sp = setp[["x", "y", "z"]].to_numpy()
+    on = np.linalg.norm(sp, axis=1) > 0
+    if not on.any():
+        raise DataError(f"{name}: the setpoint stream is zero throughout: no flight segment")
+    h_start, h_end = setp["t_src"].to_numpy()[on][[0, -1]]
+    s_start, s_end = host_to_stm(h_start), host_to_stm(h_end)
+    k0, k1 = int(np.ceil(s_start * cfg.rate - 1e-6)), int(np.floor(s_end * cfg.rate + 1e-6))
+    t = np.arange(k0, k1 + 1) / cfg.rate
+    if len(t) < cfg.min_samples:
+        raise DataError(f"{name}: the flight segment has {max(len(t), 0)} samples, fewer than the "
+                        f"{cfg.min_samples} of one window")
+    t = t[(t >= t_mc[0]) & (t <= t_mc[-1]) & (t >= t_od[0]) & (t <= t_od[-1])]
+    if len(t) < cfg.min_samples:
+        raise DataError(f"{name}: the streams cover {len(t)} samples of the flight segment, fewer than "
+                        f"the {cfg.min_samples} of one window")
+
+    # 5. resampling
+    out = pd.DataFrame({"t": t})
+    masks = {}
+    j, masks["odom"] = _grid_nearest(t_od, t, period)
+    for c in ("vx", "vy", "vz"):
+        out[c] = odom[c].to_numpy()[j]
+    j, masks["imu"] = _grid_nearest(t_imu, t, period)
+    for src, dst in (("wx", "wx"), ("wy", "wy"), ("wz", "wz"), ("ax", "ax_body"), ("ay", "ay_body"), ("az", "az_body")):
+        out[dst] = imu[src].to_numpy()[j]
+    for i in range(4):
+        col = m2[:, i]
+        ok = ~np.isnan(col)
+        j, miss = _grid_nearest(t_mot[ok], t, period)
+        out[f"m{i + 1}_rads"] = col[ok][j]
+        masks[f"m{i + 1}"] = miss
+    # motion capture: interpolation between frames; samples inside a dropout are marked
+    frame = np.median(np.diff(t_mc))
+    right = np.clip(np.searchsorted(t_mc, t), 1, len(t_mc) - 1)
+    masks["mocap"] = (t_mc[right] - t_mc[right - 1]) > 2.5 * frame
+    for c in ("x", "y", "z"):
+        out[c] = np.interp(t, t_mc, mocap[c].to_numpy())
+    q = mocap[["qx", "qy", "qz", "qw"]].to_numpy()
+    out[["qx", "qy", "qz", "qw"]] = Slerp(t_mc, Rotation.from_quat(q))(t).as_quat()
+    for k, m in masks.items():
+        out[f"miss_{k}"] = m
+
+    report.update({
+        "samples": int(len(t)),
+        "t_start_stm": float(t[0]),
+        "stm_drift": stm_drift,
+        # STM32 time minus mocap time of the same instant, at the start of the flight
+        "mocap_to_stm_offset": float(t[0] - np.interp(t[0], t_mc, mocap["t_src"].to_numpy())),
+        "motor_lag": float(motor_lag),
+        "mocap_lag": mocap_lag,
+        "missing": {k: float(m.mean()) for k, m in masks.items()},
+        "longest_gap": {k: _longest_run(m) for k, m in masks.items()},
+    })
+    warnings = [f"{k}: {v:.1%} of samples missing" for k, v in report["missing"].items() if v > cfg.warn_loss]
+    warnings += [f"{k}: {v} samples missing in a row" for k, v in report["longest_gap"].items() if v > cfg.warn_gap]
+    report["warnings"] = warnings
+    for w in warnings:
+        log.warning("%s: %s", name, w)
+    return out, report
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    if not mask.any():
+        return 0
+    padded = np.r_[0, mask.astype(int), 0]
+    edges = np.flatnonzero(np.diff(padded))
+    return int((edges[1::2] - edges[::2]).max())

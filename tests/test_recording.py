@@ -1,0 +1,301 @@
+"""Recordings and the data pipeline: bags, extraction, synchronisation, filtering, bad input."""
+
+import dataclasses
+from pathlib import Path
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+from omegaconf import OmegaConf
+from rosbags.highlevel import AnyReader
+from rosbags.rosbag2 import StoragePlugin, Writer
+
+from nanosysid import sim, so3
+from nanosysid.dataio import DataError
+from nanosysid.recording import pipeline
+from nanosysid.recording.bags import typestore
+from nanosysid.recording.extract import extract_bag
+from nanosysid.recording.filtering import FilterConfig, fill_gaps, filter_flight, lowpass
+from nanosysid.recording.recorder import RecorderConfig, record_flight
+from nanosysid.recording.sync import SyncConfig, sync_flight
+from nanosysid.sim.simulator import SimConfig, simulate_raw
+from nanosysid.vehicle import Vehicle
+
+ROOT = Path(__file__).resolve().parents[1]
+
+TOPICS = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "topics" / "crazyflie.yaml"))
+CFG = SimConfig.from_mapping({
+    "preroll": 0.5, "postroll": 1.0,
+    "trajectories": {"melon": {"duration": 8.0, "circle_time": 6.0, "return_time": 1.5, "ramp_time": 0.15}},
+})
+WORLD = sim.World(dict(sim.DEFAULT_WORLD))
+
+
+@pytest.fixture(scope="module")
+def raw():
+    return simulate_raw([("melon_20250601_run1", "melon", 1)], world=WORLD, cfg=CFG, progress=False)
+
+
+def record(raw, path, **recorder):
+    return record_flight(raw, 0, path, topics=TOPICS, cfg=RecorderConfig(**recorder), noise=CFG.noise,
+                         world=WORLD, vehicle=Vehicle(), seed=0)
+
+
+@pytest.fixture(scope="module")
+def bag(raw, tmp_path_factory):
+    path = tmp_path_factory.mktemp("bags") / "melon_20250601_run1"
+    record(raw, path)
+    return path
+
+
+def process(bag_path):
+    tables = extract_bag(bag_path, TOPICS)
+    synced, report = sync_flight(bag_path.name, tables, SyncConfig())
+    flight, _ = filter_flight(bag_path.name, synced, FilterConfig())
+    return tables, synced, report, flight
+
+
+def test_bag_holds_every_stream_with_its_message_type(bag):
+    with AnyReader([bag], default_typestore=typestore()) as r:
+        got = {c.topic: (c.msgtype, c.msgcount) for c in r.connections}
+    for spec in TOPICS.values():
+        assert got[spec["topic"]][0] == spec["type"] and got[spec["topic"]][1] > 0
+    # mocap at 120 Hz and the onboard streams at 100 Hz, less a few percent of lost packets
+    n_mocap, n_imu = got[TOPICS["mocap"]["topic"]][1], got[TOPICS["imu"]["topic"]][1]
+    assert 1.1 < n_mocap / n_imu < 1.35
+
+
+def test_extract_converts_to_si_units(bag, raw):
+    tables = extract_bag(bag, TOPICS)
+    motors = tables["motors"][["m1", "m2", "m3", "m4"]].to_numpy()
+    assert np.isnan(motors).any()  # missed readings (the invalid marker) are missing, not numbers
+    assert abs(np.nanmedian(motors) - Vehicle().hover_speed) < 100  # rad/s around hover
+    assert abs(tables["imu"]["az"].median() - 9.81) < 1.0  # specific force in m/s^2
+    assert np.all(np.diff(tables["odom"]["t_src"]) > 0)  # sorted by the source clock
+
+
+def test_sync_recovers_non_default_lags_and_matches_the_truth(raw, tmp_path):
+    path = tmp_path / "melon_20250601_run1"
+    injected = record(raw, path, motor_delay=0.037, mocap_latency=0.021, stm_clock=77.7, stm_drift_ppm=-60.0,
+                      mocap_clock=999.9, wifi_latency=0.02)
+    _, synced, report, flight = process(path)
+    assert abs(report["motor_lag"] - injected["motor_lag"]) < 0.010
+    assert abs(report["mocap_to_stm_offset"] - injected["mocap_to_stm_offset"]) < 0.010
+    truth = pd.read_parquet(tmp_path / "melon_20250601_run1.truth.parquet")
+    idx = np.searchsorted(truth["t_stm"].to_numpy(), synced["t"].to_numpy() - 1e-6)
+    tr = truth.iloc[idx]
+    assert np.allclose(tr["t_stm"].to_numpy(), synced["t"].to_numpy(), atol=1e-6)
+    pos = np.sqrt(((flight.y[:, :3] - tr[["p0", "p1", "p2"]].to_numpy()) ** 2).sum(1).mean())
+    att = so3.geodesic_angle(torch.from_numpy(tr[["q0", "q1", "q2", "q3"]].to_numpy().copy()),
+                             torch.from_numpy(np.ascontiguousarray(flight.y[:, 6:10])))
+    rotor = np.sqrt(((flight.u - tr[["omega0", "omega1", "omega2", "omega3"]].to_numpy()) ** 2).mean())
+    assert pos < 5e-3 and float(torch.sqrt((att**2).mean())) < 0.01 and rotor < 0.02 * Vehicle().hover_speed
+    # the flight segment is where the setpoint is non-zero: the trajectory's 8 s
+    assert abs(len(flight) - 801) <= 2
+
+
+def test_damaged_but_usable_flight_passes_with_warnings(raw, tmp_path):
+    path = tmp_path / "melon_20250601_run1"
+    record(raw, path, wifi_loss=0.25, mocap_dropouts_per_min=20.0, mocap_dropout_len=(0.2, 0.25))
+    _, _, report, flight = process(path)
+    assert any("imu" in w and "missing" in w for w in report["warnings"])
+    assert any("mocap" in w and "in a row" in w for w in report["warnings"])
+    assert np.isfinite(flight.y).all() and np.isfinite(flight.u).all()
+
+
+# ---- bad input ------------------------------------------------------------------------------
+
+
+def rewrite(src, dst, change=lambda topic, msg, t: (msg, t), drop_topics=()):
+    """Copy a bag message by message, through ``change(topic, msg, t) -> (msg, t) | None``."""
+    store = typestore()
+    with AnyReader([src], default_typestore=store) as r:
+        writer = Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP)
+        with writer:
+            conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+                     for c in r.connections if c.topic not in drop_topics}
+            for i, (c, t, raw) in enumerate(r.messages()):
+                if c.id not in conns:
+                    continue
+                out = change(c.topic, r.deserialize(raw, c.msgtype), t)
+                if out is not None:
+                    writer.write(conns[c.id], out[1], store.serialize_cdr(out[0], c.msgtype))
+    return dst
+
+
+def shift_stamp(msg, dt):
+    st = msg.header.stamp
+    total = st.sec + st.nanosec * 1e-9 + dt
+    new = dataclasses.replace(st, sec=int(np.floor(total)), nanosec=int(round((total - np.floor(total)) * 1e9)) % 10**9)
+    return dataclasses.replace(msg, header=dataclasses.replace(msg.header, stamp=new))
+
+
+IMU = TOPICS["imu"]["topic"]
+MOCAP = TOPICS["mocap"]["topic"]
+
+
+def test_truncated_and_corrupt_bags(bag, tmp_path):
+    import shutil
+
+    for kind in ("truncated", "corrupt"):
+        dst = tmp_path / kind
+        shutil.copytree(bag, dst)
+        mcap = next(dst.glob("*.mcap"))
+        data = bytearray(mcap.read_bytes())
+        if kind == "truncated":
+            data = data[: len(data) // 2]
+        else:
+            data[len(data) // 3 : len(data) // 3 + 4096] = b"\xff" * 4096
+        mcap.write_bytes(bytes(data))
+        with pytest.raises(DataError, match=rf"{kind}: (cannot read the bag|the bag is damaged or truncated)"):
+            extract_bag(dst, TOPICS)
+
+
+def test_missing_and_empty_topics(bag, tmp_path):
+    dst = rewrite(bag, tmp_path / "missing", drop_topics=(IMU,))
+    with pytest.raises(DataError, match=rf"missing: topic {IMU} \(imu\) not found; the bag has: "):
+        extract_bag(dst, TOPICS)
+    dst = rewrite(bag, tmp_path / "empty", lambda topic, m, t: None if topic == IMU else (m, t))
+    with pytest.raises(DataError, match=rf"empty: topic {IMU} \(imu\) has no messages"):
+        extract_bag(dst, TOPICS)
+
+
+def test_time_stamps_going_back_or_repeating(bag, tmp_path):
+    count = {"n": 0}
+
+    def back(topic, m, t):
+        if topic == IMU:
+            count["n"] += 1
+            if count["n"] > 300:
+                return shift_stamp(m, -5.0), t  # the STM32 clock jumps back 5 s
+        return m, t
+
+    with pytest.raises(DataError, match=rf"back: topic {IMU} \(imu\), message 300: time stamp goes backwards by 4\.9\d\d s"):
+        extract_bag(rewrite(bag, tmp_path / "back", back), TOPICS)
+    seen = {"prev": None}
+
+    def repeat(topic, m, t):
+        if topic == IMU:
+            cur, seen["prev"] = seen["prev"], m
+            if cur is not None and count["n"] == 0:
+                count["n"] = 1
+                return dataclasses.replace(m, header=cur.header), t  # the previous message's stamp
+        return m, t
+
+    count["n"] = 0
+    with pytest.raises(DataError, match=rf"repeat: topic {IMU} \(imu\): time stamp .* repeats"):
+        extract_bag(rewrite(bag, tmp_path / "repeat", repeat), TOPICS)
+
+
+def test_nan_value(bag, tmp_path):
+    count = {"n": 0}
+
+    def nan(topic, m, t):
+        if topic == IMU:
+            count["n"] += 1
+            if count["n"] == 42:
+                acc = dataclasses.replace(m.linear_acceleration, z=float("nan"))
+                return dataclasses.replace(m, linear_acceleration=acc), t
+        return m, t
+
+    with pytest.raises(DataError, match=rf"nan: topic {IMU} \(imu\), message 41: field az is nan"):
+        extract_bag(rewrite(bag, tmp_path / "nan", nan), TOPICS)
+
+
+def test_streams_that_never_overlap(bag, tmp_path):
+    # motion capture stamped and received an hour later than everything else
+    dst = rewrite(bag, tmp_path / "apart", lambda topic, m, t: (shift_stamp(m, 3600.0), t + 3600 * 10**9)
+                  if topic == MOCAP else (m, t))
+    with pytest.raises(DataError, match="apart: the motion capture and the onboard streams never overlap"):
+        sync_flight("apart", extract_bag(dst, TOPICS), SyncConfig())
+
+
+def test_flight_shorter_than_one_window(bag, tmp_path):
+    sp = TOPICS["setpoint"]["topic"]
+    first = {"t": None}
+
+    def short(topic, m, t):
+        if topic == sp and m.pose.position.z != 0:
+            first["t"] = first["t"] or t
+            if t > first["t"] + 0.3e9:  # the setpoint is non-zero for 0.3 s only
+                zero = dataclasses.replace(m.pose.position, x=0.0, y=0.0, z=0.0)
+                return dataclasses.replace(m, pose=dataclasses.replace(m.pose, position=zero)), t
+        return m, t
+
+    dst = rewrite(bag, tmp_path / "short", short)
+    with pytest.raises(DataError, match=r"short: the flight segment has 3\d samples, fewer than the 51 of one window"):
+        sync_flight("short", extract_bag(dst, TOPICS), SyncConfig())
+
+
+def test_stage_error_names_the_bag_and_keeps_old_output(bag, tmp_path):
+    import shutil
+
+    bags = tmp_path / "bags"
+    shutil.copytree(bag, bags / bag.name)
+    out = tmp_path / "extract"
+    pipeline.extract_folder(bags, out, TOPICS)
+    before = sorted(p.name for p in (out / bag.name).iterdir())
+    rewrite(bag, bags / "broken_20250601_run1", drop_topics=(IMU,))
+    with pytest.raises(DataError, match="broken_20250601_run1: topic"):
+        pipeline.extract_folder(bags, out, TOPICS)
+    assert sorted(p.name for p in (out / bag.name).iterdir()) == before
+    assert not (out / "broken_20250601_run1").exists()
+
+
+# ---- filtering on analytic signals ----------------------------------------------------------
+
+
+def test_lowpass_passes_slow_sines_unchanged_and_without_lag():
+    t = np.arange(0, 20, 0.01)
+    slow = np.sin(2 * np.pi * 1.5 * t + 0.3)
+    out = lowpass(slow, 10.0, 100.0)
+    inner = slice(200, -200)  # away from the edges' transients
+    assert np.abs(out - slow)[inner].max() < 0.01  # same amplitude, same phase: no lag
+    fast = np.sin(2 * np.pi * 30 * t)
+    assert np.abs(lowpass(fast, 10.0, 100.0))[inner].max() < 0.02  # 30 Hz through 10 Hz: attenuated
+
+
+def test_quaternion_path_keeps_unit_norm_and_slow_rotations():
+    t = np.arange(0, 10, 0.01)
+    angle = 0.8 * np.sin(2 * np.pi * 0.7 * t)
+    axis = np.array([0.3, -0.4, 0.866])
+    axis /= np.linalg.norm(axis)
+    q = so3.quat_exp(torch.from_numpy(angle[:, None] * axis)).numpy()
+    rng = np.random.default_rng(0)
+    noisy = so3.quat_mul(torch.from_numpy(q), so3.quat_exp(torch.from_numpy(rng.normal(scale=0.01, size=(len(t), 3))))).numpy()
+    for signal, check in ((q, "unchanged"), (noisy, "denoised")):
+        qf = _filtered_quaternions(t, signal)
+        assert np.allclose(np.linalg.norm(qf, axis=1), 1, atol=1e-12)
+        err = so3.geodesic_angle(torch.from_numpy(q), torch.from_numpy(np.ascontiguousarray(qf))).numpy()[100:-100]
+        if check == "unchanged":  # a 0.7 Hz rotation through the 12 Hz filter: no change, no lag
+            assert err.max() < 1e-3
+        else:
+            before = so3.geodesic_angle(torch.from_numpy(q), torch.from_numpy(noisy)).numpy()[100:-100]
+            assert np.sqrt((err**2).mean()) < 0.6 * np.sqrt((before**2).mean())
+
+
+def _filtered_quaternions(t, quats):
+    df = pd.DataFrame({"t": t})
+    for c in ("x", "y", "z", "vx", "vy", "vz", "wx", "wy", "wz", "ax_body", "ay_body", "az_body",
+              "m1_rads", "m2_rads", "m3_rads", "m4_rads"):
+        df[c] = 0.0
+    df[["qx", "qy", "qz", "qw"]] = quats
+    for m in ("mocap", "odom", "imu", "m1", "m2", "m3", "m4"):
+        df[f"miss_{m}"] = False
+    flight, _ = filter_flight("f", df, FilterConfig())
+    return flight.y[:, 6:10]
+
+
+def test_gap_filling_is_bounded():
+    x = np.arange(40, dtype=float) * 2.0
+    miss = np.zeros(40, bool)
+    miss[5:9] = True  # 4 samples: filled
+    miss[20:32] = True  # 12 samples: left
+    held = x.copy()
+    held[5:9] = -1
+    held[20:32] = -1
+    out, left = fill_gaps(held, miss, max_gap=10)
+    assert np.allclose(out[5:9], x[5:9]) and np.all(out[20:32] == -1)
+    assert left == [(20, 12)]
