@@ -41,10 +41,10 @@ log = logging.getLogger(__name__)
 class SyncConfig:
     rate: float = 100.0  # Hz, output grid on the STM32 clock
     max_lag: float = 0.3  # s, search range of the cross-correlations
-    # both signals of a cross-correlation are high-passed first: the slow motion of the
+    # both signals of a cross-correlation are band-passed first: the slow motion of the
     # trajectory carries components that are not pure delays (drag, which follows velocity,
-    # in a_z), and they would bias the peak; the fast fluctuations carry the delay alone
-    xcorr_highpass: float = 1.0  # Hz
+    # in a_z) and would bias the peak, and above the band the sensors' noise dominates
+    xcorr_band: tuple[float, float] = (1.0, 20.0)  # Hz
     xcorr_step: float = 0.002  # s, grid of the cross-correlations
     min_samples: int = 51  # a flight needs at least one window (H + 1)
     warn_loss: float = 0.10  # warn above this share of missing samples in a stream
@@ -52,7 +52,10 @@ class SyncConfig:
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "SyncConfig":
-        return cls(**dict(cfg))
+        kw = dict(cfg)
+        if "xcorr_band" in kw:
+            kw["xcorr_band"] = tuple(float(f) for f in kw["xcorr_band"])
+        return cls(**kw)
 
 
 def clock_fit(t_src: np.ndarray, t_recv: np.ndarray) -> tuple[float, float]:
@@ -68,13 +71,14 @@ def clock_fit(t_src: np.ndarray, t_recv: np.ndarray) -> tuple[float, float]:
     return float(drift), float(offset - drift * t_src[0])
 
 
-def xcorr_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: float, highpass: float = 0.0) -> float:
+def xcorr_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: float,
+              band: tuple[float, float] | None = None) -> float:
     """Lag (s) by which ``b`` follows ``a``: ``b(t) ≈ a(t - lag)``; both on one grid of step dt.
 
-    With ``highpass`` (Hz), both signals are high-passed (zero phase) before correlating.
+    With ``band`` (Hz), both signals are band-passed (zero phase) before correlating.
     """
-    if highpass > 0:
-        sos = butter(2, highpass, "highpass", fs=1.0 / dt, output="sos")
+    if band is not None:
+        sos = butter(2, band, "bandpass", fs=1.0 / dt, output="sos")
         a, b = sosfiltfilt(sos, a), sosfiltfilt(sos, b)
     a = a - a.mean()
     b = b - b.mean()
@@ -146,7 +150,7 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig) 
         a = np.interp(tf, t_od, odom[c].to_numpy())
         b = np.interp(tf, t_mc_coarse, mocap[c].to_numpy())
         # mocap mapped coarsely trails the onboard estimate by the latency difference
-        lags.append(float(xcorr_lag(a, b, cfg.xcorr_step, cfg.max_lag, cfg.xcorr_highpass)))
+        lags.append(float(xcorr_lag(a, b, cfg.xcorr_step, cfg.max_lag, cfg.xcorr_band)))
     mocap_lag = float(np.mean(lags))
     t_mc = t_mc_coarse - mocap_lag
     report["mocap_lag_axes"] = lags
@@ -162,7 +166,7 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig) 
     valid = ~np.isnan(m2).any(axis=1)
     thrust_proxy = np.interp(tf, t_mot[valid], (m2[valid] ** 2).sum(axis=1))
     az = np.interp(tf, t_imu, imu["az"].to_numpy())
-    motor_lag = xcorr_lag(az, thrust_proxy, cfg.xcorr_step, cfg.max_lag, cfg.xcorr_highpass)
+    motor_lag = xcorr_lag(az, thrust_proxy, cfg.xcorr_step, cfg.max_lag, cfg.xcorr_band)
     t_mot = t_mot - motor_lag
 
     # 4. flight segment from the setpoints
