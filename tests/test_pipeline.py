@@ -10,7 +10,7 @@ import pytest
 from nanosysid import config
 from nanosysid.cli import run_stage
 from nanosysid.dataio import read_flight_csv
-from stages import evaluate, extract, filter as filter_stage, quality, simulate, split, sync
+from stages import evaluate, extract, filter as filter_stage, identify, quality, simulate, split, sync
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,6 +40,9 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"paths.split={root / 'split'}",
         f"paths.eval={root / 'eval'}",
         f"paths.sim_report={root / 'sim'}",
+        f"identify.out_dir={root / 'physics'}",
+        f"models.physics.identified={root / 'physics' / 'params.json'}",
+        f"models.physics_full.identified={root / 'physics' / 'params.json'}",
         *TINY_SIM,
         *extra,
     ]
@@ -55,7 +58,7 @@ def run(stage, root, *extra, name=None):
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory):
     root = tmp_path_factory.mktemp("pipeline")
-    for stage in (simulate, extract, sync, filter_stage, quality, split):
+    for stage in (simulate, extract, sync, filter_stage, quality, split, identify):
         assert run(stage, root) == 0, stage.__name__
     return root
 
@@ -80,6 +83,13 @@ def test_processed_flights_match_the_truth(tiny):
         assert abs(row["motor_lag_ms"] - row["motor_lag_injected_ms"]) < 10
     assert "| melon_20250601_run2 |" in (tiny / "reports" / "quality.md").read_text()
     assert "| chirp_20250601_run1 |" in (tiny / "reports" / "sync.md").read_text()
+
+
+def test_identify_writes_coefficients_and_figure(tiny):
+    fit = json.loads((tiny / "physics" / "params.json").read_text())
+    assert abs(fit["k_f"] / 3.72e-8 - 1) < 0.03 and fit["thrust_fit"]["r2"] > 0.9
+    assert fit["train_flights"] == ["chirp_20250601_run1"]
+    assert (tiny / "physics" / "identify.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_split_and_evaluate(tiny):
@@ -149,7 +159,7 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     assert "Running stage 'evaluate@physics'" in out and "Running stage 'evaluate@naive'" in out
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=2")
     assert "Running stage 'evaluate@physics':" in out
-    for other in ("simulate", "extract", "sync", "filter", "split", "evaluate@naive", "evaluate@oracle"):
+    for other in ("simulate", "extract", "sync", "filter", "split", "identify", "evaluate@naive", "evaluate@oracle"):
         assert f"Running stage '{other}'" not in out
     # back to the earlier value: restored from the run cache, not recomputed
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=1")

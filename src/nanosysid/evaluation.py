@@ -12,6 +12,7 @@ from omegaconf import DictConfig, OmegaConf
 from nanosysid import benchmark, report
 from nanosysid.config import ConfigError
 from nanosysid.dataio import atomic_file
+from nanosysid.models import build_from_config
 
 __all__ = ["evaluate_model", "metrics_payload"]
 
@@ -32,10 +33,9 @@ def evaluate_model(cfg: DictConfig, name: str) -> benchmark.Scores:
     if name not in cfg.models:
         raise ConfigError(f"models.{name}: no such model in the config (known: {', '.join(cfg.models)})")
     options = OmegaConf.to_container(cfg.models[name], resolve=True)
-    kind = options.pop("kind")
     horizon = int(cfg.eval.horizon)
     bench = benchmark.load(cfg.paths.split, horizon=horizon)
-    predict = benchmark.model(kind, **options)
+    predict = build_from_config(options)
     scores = benchmark.evaluate(predict, bench.test, horizon=horizon, batch_size=int(cfg.eval.batch_size))
     out = Path(cfg.paths.eval) / name
     # table horizons beyond a shortened evaluation horizon have no value to show

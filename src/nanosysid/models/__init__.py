@@ -6,7 +6,7 @@ from typing import Any, Callable
 
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["build_predictor", "MODEL_KINDS"]
+__all__ = ["build_predictor", "build_from_config", "identified_vehicle", "MODEL_KINDS"]
 
 
 def _vehicle(v: Any) -> Vehicle:
@@ -23,12 +23,26 @@ def _naive(**options: Any) -> Callable:
     return naive_predict
 
 
+def identified_vehicle(vehicle: Any = None, identified: str | None = None) -> Vehicle:
+    """The vehicle with k_F and k_M from an ``identify`` result (``params.json``), if given."""
+    v = _vehicle(vehicle)
+    if identified:
+        import dataclasses
+        import json
+        from pathlib import Path
+
+        fit = json.loads(Path(identified).read_text())
+        v = dataclasses.replace(v, k_f=float(fit["k_f"]), k_m=float(fit["k_m"]))
+    return v
+
+
 def _physics(*, angular_dynamics: bool, name: str) -> Callable:
-    def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1) -> Callable:
+    def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1, identified: str | None = None) -> Callable:
         from nanosysid.models.physics import PhysicsStep
         from nanosysid.rollout import StepPredictor
 
-        step = PhysicsStep(_vehicle(vehicle), dt=dt, substeps=substeps, angular_dynamics=angular_dynamics)
+        v = identified_vehicle(vehicle, identified)
+        step = PhysicsStep(v, dt=dt, substeps=substeps, angular_dynamics=angular_dynamics)
         return StepPredictor(step, name=name)
 
     return build
@@ -57,3 +71,13 @@ def build_predictor(name: str, **options: Any) -> Callable:
     except KeyError:
         raise KeyError(f"unknown model {name!r}; known: {', '.join(sorted(MODEL_KINDS))}") from None
     return factory(**options)
+
+
+def build_from_config(options: dict[str, Any]) -> Callable:
+    """Build the predictor of a ``models.<name>`` config block (``kind`` plus options).
+
+    ``artifact`` names the file or folder the model is made from, for DVC's dependency
+    tracking; it is not an option of the model.
+    """
+    opts = {k: v for k, v in options.items() if k not in ("kind", "artifact")}
+    return build_predictor(options["kind"], **opts)

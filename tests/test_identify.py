@@ -1,0 +1,39 @@
+"""k_F / k_M identification: known answers on flights of the nominal dynamics."""
+
+import dataclasses
+
+import numpy as np
+
+from nanosysid import benchmark, identify, synthetic
+from nanosysid.models import identified_vehicle
+from nanosysid.vehicle import Vehicle
+
+
+def test_recovers_the_coefficients_the_flights_were_made_with(tmp_path):
+    truth = dataclasses.replace(Vehicle(), k_f=4.1e-8, k_m=9.0e-11)
+    names = [f"chirp_x_run{k}" for k in range(1, 4)]
+    flights = synthetic.synthetic_flights(names, 1500, vehicle=truth, noise=0.0, seed=2)
+    thrust = identify.fit_thrust(flights, truth)
+    yaw = identify.fit_yaw_moment(flights, truth)
+    assert abs(thrust.coef / truth.k_f - 1) < 1e-6 and thrust.r2 > 0.999999
+    assert abs(yaw.coef / truth.k_m - 1) < 0.01 and yaw.r2 > 0.99 and abs(yaw.intercept) < 1e-7
+    assert thrust.stderr < 1e-3 * thrust.coef and yaw.stderr < 0.01 * yaw.coef
+
+
+def test_yaw_offset_goes_to_the_intercept_not_to_k_m():
+    truth = Vehicle()
+    flights = synthetic.synthetic_flights(["chirp_x_run1", "chirp_x_run2"], 1500, noise=0.0, seed=3)
+    for f in flights:
+        # a constant yaw torque on top: the gyro-reconstructed torque shifts by it
+        f.y[:, 12] += 2e-5 / truth.inertia[2] * (f.t - f.t[0])
+    yaw = identify.fit_yaw_moment(flights, truth)
+    assert abs(yaw.coef / truth.k_m - 1) < 0.02 and np.isclose(yaw.intercept, 2e-5, rtol=0.02)
+
+
+def test_physics_models_use_the_identified_coefficients(tmp_path):
+    path = tmp_path / "params.json"
+    path.write_text('{"k_f": 4.0e-8, "k_m": 8.0e-11}')
+    v = identified_vehicle(None, str(path))
+    assert v.k_f == 4.0e-8 and v.k_m == 8.0e-11 and v.mass == Vehicle().mass
+    step = benchmark.model("physics_full", identified=str(path)).step
+    assert step.vehicle.k_f == 4.0e-8
