@@ -10,17 +10,19 @@ import pytest
 from nanosysid import config
 from nanosysid.cli import run_stage
 from nanosysid.dataio import read_flight_csv
-from stages import evaluate, extract, filter as filter_stage, identify, quality, simulate, split, sync
+from stages import evaluate, extract, filter as filter_stage, identify, quality, simulate, split, sync, train
 
 ROOT = Path(__file__).resolve().parents[1]
 
 # two short simulated flights: enough for every stage, seconds to run
 TINY_SIM = [
-    "sim.runs={square: 0, random: 0, chirp: 1, melon: 2}",
+    "sim.runs={square: 0, random: 0, chirp: 2, melon: 2}",
     "sim.flight.preroll=0.5",
     "sim.flight.trajectories.chirp.duration=3.0",
     "sim.flight.trajectories.melon={duration: 3.0, circle_time: 2.0, return_time: 0.5}",
-]
+] + [f"models.{m}.train.{k}" for m in ("residual", "phys_res", "lstm")
+     for k in ("epochs=2", "stride=10", "val_runs=[2]")]
+LEARNED = ("residual", "phys_res", "lstm")
 
 
 def tiny_args(root: Path, *extra: str) -> list[str]:
@@ -43,6 +45,9 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"identify.out_dir={root / 'physics'}",
         f"models.physics.identified={root / 'physics' / 'params.json'}",
         f"models.physics_full.identified={root / 'physics' / 'params.json'}",
+        f"models.phys_res.identified={root / 'physics' / 'params.json'}",
+        f"paths.train_logs={root / 'train'}",
+        *(f"models.{m}.checkpoint={root / 'models' / m / 'model.pt'}" for m in LEARNED),
         *TINY_SIM,
         *extra,
     ]
@@ -60,22 +65,25 @@ def tiny(tmp_path_factory):
     root = tmp_path_factory.mktemp("pipeline")
     for stage in (simulate, extract, sync, filter_stage, quality, split, identify):
         assert run(stage, root) == 0, stage.__name__
+    for m in LEARNED:
+        assert run(train, root, name=m) == 0, m
     return root
 
 
 def test_simulate_records_bags_truth_and_direct_csvs(tiny):
     raw = tiny / "raw"
     assert sorted(p.name for p in (raw / "bags").iterdir()) == sorted(
-        f"{n}{s}" for n in ("chirp_20250601_run1", "melon_20250601_run1", "melon_20250601_run2")
+        f"{n}{s}" for n in ("chirp_20250601_run1", "chirp_20250601_run2", "melon_20250601_run1", "melon_20250601_run2")
         for s in ("", ".truth.json", ".truth.parquet"))
     csvs = sorted(str(p.relative_to(raw / "csv")) for p in (raw / "csv").rglob("*.csv"))
-    assert csvs == ["test/melon_20250601_run1.csv", "test/melon_20250601_run2.csv", "train/chirp_20250601_run1.csv"]
+    assert csvs == ["test/melon_20250601_run1.csv", "test/melon_20250601_run2.csv",
+                    "train/chirp_20250601_run1.csv", "train/chirp_20250601_run2.csv"]
     assert "| melon | 3.00 / 65.00 (0.05 ✗)" in (tiny / "sim" / "stats.md").read_text()
 
 
 def test_processed_flights_match_the_truth(tiny):
     flights = sorted(p.stem for p in (tiny / "flights").glob("*.csv"))
-    assert flights == ["chirp_20250601_run1", "melon_20250601_run1", "melon_20250601_run2"]
+    assert flights == ["chirp_20250601_run1", "chirp_20250601_run2", "melon_20250601_run1", "melon_20250601_run2"]
     assert len(read_flight_csv(tiny / "flights" / "melon_20250601_run1.csv")) in range(299, 303)
     q = json.loads((tiny / "reports" / "quality.json").read_text())
     for row in q["flights"]:
@@ -88,16 +96,16 @@ def test_processed_flights_match_the_truth(tiny):
 def test_identify_writes_coefficients_and_figure(tiny):
     fit = json.loads((tiny / "physics" / "params.json").read_text())
     assert abs(fit["k_f"] / 3.72e-8 - 1) < 0.03 and fit["thrust_fit"]["r2"] > 0.9
-    assert fit["train_flights"] == ["chirp_20250601_run1"]
+    assert fit["train_flights"] == ["chirp_20250601_run1", "chirp_20250601_run2"]
     assert (tiny / "physics" / "identify.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
 def test_split_and_evaluate(tiny):
     summary = json.loads((tiny / "split" / "split.json").read_text())
-    assert list(summary["train"]["flights"]) == ["chirp_20250601_run1"]
+    assert list(summary["train"]["flights"]) == ["chirp_20250601_run1", "chirp_20250601_run2"]
     assert list(summary["test"]["flights"]) == ["melon_20250601_run1", "melon_20250601_run2"]
     simerr = {}
-    for model in ("naive", "physics", "physics_full", "oracle"):
+    for model in ("naive", "physics", "physics_full", "oracle", *LEARNED):
         assert run(evaluate, tiny, name=model) == 0
         m = json.loads((tiny / "eval" / model / "metrics.json").read_text())
         n = summary["test"]["samples"] - 2 * 50
@@ -107,6 +115,16 @@ def test_split_and_evaluate(tiny):
         simerr[model] = m["simerr"]
     assert simerr["physics"]["p"] < 0.3 * simerr["naive"]["p"]
     assert simerr["oracle"]["v"] < simerr["physics"]["v"]
+    # two epochs on 3 s of flight teach little; phys_res cannot be worse than its physics start
+    assert simerr["phys_res"]["p"] < 1.5 * simerr["physics"]["p"]
+
+
+def test_training_logs_every_epoch_with_dvclive(tiny):
+    for m in LEARNED:
+        summary = json.loads((tiny / "train" / m / "summary.json").read_text())
+        assert summary["params"] > 15_000 and summary["epochs"] == 2
+        rows = (tiny / "train" / m / "plots" / "metrics" / "val" / "loss.tsv").read_text().splitlines()
+        assert rows[0].split("\t") == ["step", "loss"] and len(rows) == 3  # header + 2 epochs, no time stamps
 
 
 def test_failing_split_keeps_previous_output_and_names_the_file(tiny, tmp_path, capsys):
@@ -159,9 +177,16 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     assert "Running stage 'evaluate@physics'" in out and "Running stage 'evaluate@naive'" in out
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=2")
     assert "Running stage 'evaluate@physics':" in out
-    for other in ("simulate", "extract", "sync", "filter", "split", "identify", "evaluate@naive", "evaluate@oracle"):
+    for other in ("simulate", "extract", "sync", "filter", "split", "identify", "evaluate@naive", "evaluate@oracle",
+                  "train@lstm", "evaluate@lstm"):
         assert f"Running stage '{other}'" not in out
     # back to the earlier value: restored from the run cache, not recomputed
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=1")
     assert "Stage 'evaluate@physics' is cached - skipping run" in out
     assert "Running stage" not in out
+    # a learned model: retrains and re-evaluates that model alone, and comes back from the cache
+    out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.hidden=48")
+    assert "Running stage 'train@lstm'" in out and "Running stage 'evaluate@lstm'" in out
+    assert out.count("Running stage") == 2, out
+    out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.hidden=62")
+    assert "Stage 'train@lstm' is cached - skipping run" in out and "Running stage" not in out

@@ -173,10 +173,12 @@ def score(y_true, y_pred) -> Scores:
 
 
 def model(name: str, **options: Any) -> Predictor:
-    """A built-in predictor by name: ``naive``, ``physics`` or ``physics_full``.
+    """A predictor by name: ``naive``, ``physics``, ``physics_full``, ``oracle`` (simulated
+    data), or the path of a learned model's checkpoint (``models/<name>/model.pt``).
 
     Options are the model's config keys (for the physics models: ``vehicle``, a mapping
-    or :class:`~nanosysid.vehicle.Vehicle`; ``dt``; ``substeps``).
+    or :class:`~nanosysid.vehicle.Vehicle`; ``dt``; ``substeps``; ``identified``, the path
+    of an ``identify`` result whose k_F and k_M replace the vehicle's).
     """
     from nanosysid.models import build_predictor
 

@@ -56,16 +56,29 @@ def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: 
     return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay)
 
 
+def _learned(*, checkpoint: str, **architecture: Any) -> Callable:
+    """A trained model from its checkpoint; the architecture keys of its config are in the
+    checkpoint too, so they are not needed here."""
+    from nanosysid.models.learned import LearnedPredictor, load_model
+
+    model, ckpt = load_model(checkpoint)
+    return LearnedPredictor(model, name=ckpt["hparams"]["arch"])
+
+
 MODEL_KINDS: dict[str, Callable[..., Callable]] = {
     "naive": _naive,
     "physics": _physics(angular_dynamics=False, name="physics"),
     "physics_full": _physics(angular_dynamics=True, name="physics_full"),
     "oracle": _oracle,
+    "learned": _learned,
 }
 
 
 def build_predictor(name: str, **options: Any) -> Callable:
-    """Build a predictor ``predict(y0 (B,13), u (B,H,4)) -> (B,H,13)`` by model name."""
+    """Build a predictor ``predict(y0 (B,13), u (B,H,4)) -> (B,H,13)`` by model name, or from
+    the path of a learned model's checkpoint."""
+    if name.endswith((".pt", ".ckpt")):
+        return _learned(checkpoint=name)
     try:
         factory = MODEL_KINDS[name]
     except KeyError:

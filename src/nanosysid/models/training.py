@@ -1,0 +1,161 @@
+"""Training of the learned models: one LightningModule for all, networks injected.
+
+Windows of H samples are cut from the training flights (every ``stride``-th start); the model
+is rolled out over each window from its first sample and compared with every step
+(multi-step loss, in units of the output standard deviations). Early stopping watches the
+same loss on the validation flights (by default run 4 of each training trajectory).
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+import pytorch_lightning as pl
+import torch
+from torch import Tensor
+from torch.utils.data import DataLoader, TensorDataset
+
+from nanosysid.benchmark import windows
+from nanosysid.config import ConfigError
+from nanosysid.dataio import Flight
+from nanosysid.models.learned import SequenceModel, build_model, save_checkpoint, to_tilde
+
+__all__ = ["SysIdModule", "window_tensors", "train_model"]
+
+log = logging.getLogger(__name__)
+
+
+class SysIdModule(pl.LightningModule):
+    """Multi-step rollout training of any :class:`SequenceModel`."""
+
+    def __init__(self, model: SequenceModel, *, lr: float = 2e-3, weight_decay: float = 0.0) -> None:
+        super().__init__()
+        self.model = model
+        self.lr = lr
+        self.weight_decay = weight_decay
+
+    def loss(self, batch: tuple[Tensor, Tensor, Tensor]) -> Tensor:
+        yt0, u, target = batch  # (B, 12), (B, H, 4), (B, H, 12)
+        pred = self.model.rollout(yt0, u)
+        return (((pred - target) / self.model.y_std) ** 2).mean()
+
+    def training_step(self, batch, batch_idx):
+        loss = self.loss(batch)
+        self.log("train/loss", loss, on_step=False, on_epoch=True, prog_bar=True)
+        return loss
+
+    def validation_step(self, batch, batch_idx):
+        self.log("val/loss", self.loss(batch), on_step=False, on_epoch=True, prog_bar=True)
+
+    def configure_optimizers(self):
+        opt = torch.optim.Adam(self.model.parameters(), lr=self.lr, weight_decay=self.weight_decay)
+        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=3)
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss"}}
+
+
+def window_tensors(flights: Sequence[Flight], horizon: int, stride: int = 1, dtype=torch.float32) -> TensorDataset:
+    """Windows of all flights as ``(ỹ_0 (N, 12), u (N, H, 4), ỹ_1..H (N, H, 12))``."""
+    parts = []
+    for f in flights:
+        y0, u, y = windows(f, horizon)
+        parts.append((y0[::stride], u[::stride], y[::stride]))
+    y0 = torch.from_numpy(np.concatenate([p[0] for p in parts]))
+    u = torch.from_numpy(np.concatenate([p[1] for p in parts]))
+    y = torch.from_numpy(np.concatenate([p[2] for p in parts]))
+    return TensorDataset(to_tilde(y0).to(dtype), u.to(dtype), to_tilde(y).to(dtype))
+
+
+def _statistics(flights: Sequence[Flight], model: SequenceModel) -> tuple[Tensor, Tensor, Tensor]:
+    """Outputs, inputs, and the one-step changes the network has to predict: the increment
+    of the output, or for phys_res what the physics step misses of it."""
+    yt = [to_tilde(torch.from_numpy(f.y)) for f in flights]
+    if model.physics is not None:
+        with torch.no_grad():
+            d = torch.cat([y[1:] - to_tilde(model.physics.double()(torch.from_numpy(f.y[:-1]), torch.from_numpy(f.u[:-1])))
+                           for y, f in zip(yt, flights)])
+    else:
+        d = torch.cat([y[1:] - y[:-1] for y in yt])
+    return torch.cat(yt).float(), torch.from_numpy(np.concatenate([f.u for f in flights])).float(), d.float()
+
+
+def train_model(
+    hparams: dict[str, Any],
+    train: dict[str, Any],
+    flights: Sequence[Flight],
+    out: Path,
+    *,
+    log_dir: Path | None = None,
+    accelerator: str = "auto",
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Train one model and save its checkpoint to ``out``.
+
+    Args:
+        hparams: Architecture (see :func:`~nanosysid.models.learned.build_model`).
+        train: ``horizon, stride, batch_size, epochs, lr, weight_decay, patience, seed,
+            val_runs``.
+        flights: The training flights; those whose run is in ``val_runs`` validate.
+        log_dir: Where dvclive writes the per-epoch metrics (none if None).
+
+    Returns:
+        A summary (epochs run, best validation loss, parameter count).
+    """
+    pl.seed_everything(int(train["seed"]), workers=True)
+    torch.use_deterministic_algorithms(True)
+    val_runs = set(train["val_runs"])
+    fit_f = [f for f in flights if f.run not in val_runs]
+    val_f = [f for f in flights if f.run in val_runs]
+    if not fit_f or not val_f:
+        raise ConfigError(f"train: need flights both for fitting and for validation (val_runs {sorted(val_runs)}; "
+                          f"runs present: {sorted({f.run for f in flights})})")
+    model = build_model(hparams)
+    model.set_statistics(*_statistics(fit_f, model))
+    H, stride = int(train["horizon"]), int(train["stride"])
+    ds_fit = window_tensors(fit_f, H, stride)
+    ds_val = window_tensors(val_f, H, stride)
+    gen = torch.Generator().manual_seed(int(train["seed"]))
+    dl_fit = DataLoader(ds_fit, batch_size=int(train["batch_size"]), shuffle=True, generator=gen)
+    dl_val = DataLoader(ds_val, batch_size=4096)
+    module = SysIdModule(model, lr=float(train["lr"]), weight_decay=float(train.get("weight_decay", 0.0)))
+    logger = False
+    if log_dir is not None:
+        from dvclive.lightning import DVCLiveLogger
+
+        logger = DVCLiveLogger(dir=str(log_dir), save_dvc_exp=False, dvcyaml=None, report=None)
+    stop = pl.callbacks.EarlyStopping("val/loss", patience=int(train["patience"]), mode="min")
+    # the untrained model is a candidate too: phys_res starts as the physics model, and
+    # training never hands back something worse on the validation flights than its start
+    with torch.no_grad():
+        start = float(np.mean([module.loss(b).item() for b in dl_val]))
+    best = _KeepBest(start, model)
+    trainer = pl.Trainer(
+        max_epochs=int(train["epochs"]), accelerator=accelerator, devices=1, deterministic=True, logger=logger,
+        callbacks=[stop, best], enable_checkpointing=False, enable_progress_bar=progress,
+        enable_model_summary=False, num_sanity_val_steps=0,
+    )
+    trainer.fit(module, dl_fit, dl_val)
+    model.load_state_dict(best.state)
+    model.cpu()
+    n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    summary = {"epochs": trainer.current_epoch, "best_val_loss": best.value, "params": n_params,
+               "fit_windows": len(ds_fit), "val_windows": len(ds_val)}
+    save_checkpoint(model, hparams, out, extra=summary)
+    log.info("trained %s: %s", hparams["arch"], summary)
+    return summary
+
+
+class _KeepBest(pl.Callback):
+    """Keep the weights of the epoch with the lowest validation loss (in memory)."""
+
+    def __init__(self, value: float, model: SequenceModel) -> None:
+        self.value = value
+        self.state = {k: t.detach().cpu().clone() for k, t in model.state_dict().items()}
+
+    def on_validation_epoch_end(self, trainer, module) -> None:
+        v = float(trainer.callback_metrics["val/loss"])
+        if v < self.value:
+            self.value = v
+            self.state = {k: t.detach().cpu().clone() for k, t in module.model.state_dict().items()}
