@@ -10,7 +10,7 @@ import pytest
 from nanosysid import config
 from nanosysid.cli import run_stage
 from nanosysid.dataio import read_flight_csv
-from stages import evaluate, extract, filter as filter_stage, identify, quality, simulate, split, sync, train
+from stages import evaluate, extract, filter as filter_stage, identify, quality, results, simulate, split, sync, train
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -117,6 +117,17 @@ def test_split_and_evaluate(tiny):
     assert simerr["oracle"]["v"] < simerr["physics"]["v"]
     # two epochs on 3 s of flight teach little; phys_res cannot be worse than its physics start
     assert simerr["phys_res"]["p"] < 1.5 * simerr["physics"]["p"]
+
+
+def test_results_table_lists_every_model(tiny):
+    for model in ("naive", "physics", "physics_full", "oracle", *LEARNED):
+        if not (tiny / "eval" / model / "metrics.json").exists():
+            assert run(evaluate, tiny, name=model) == 0
+    assert run(results, tiny, f"paths.results={tiny / 'results.md'}") == 0
+    text = (tiny / "results.md").read_text()
+    for model in ("naive", "physics", "physics_full", "residual", "phys_res", "lstm"):
+        assert f"| {model} |" in text
+    assert "| oracle (physical limit) |" in text and "**" in text
 
 
 def test_training_logs_every_epoch_with_dvclive(tiny):
