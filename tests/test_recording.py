@@ -2,7 +2,6 @@
 
 import dataclasses
 from pathlib import Path
-import json
 
 import numpy as np
 import pandas as pd

@@ -12,14 +12,9 @@ from nanosysid.config import ConfigError
 from nanosysid.dataio import atomic_dir, atomic_file, write_flight_csv
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["write_default_dataset", "flight_names"]
+__all__ = ["write_default_dataset"]
 
 log = logging.getLogger(__name__)
-
-
-def flight_names(runs: dict[str, int], date: str) -> list[str]:
-    """``<trajectory>_<date>_run<k>`` for k = 1..runs of each trajectory."""
-    return [f"{traj}_{date}_run{k}" for traj, n in runs.items() for k in range(1, n + 1)]
 
 
 def write_default_dataset(cfg: DictConfig) -> Path:
@@ -39,7 +34,7 @@ def write_default_dataset(cfg: DictConfig) -> Path:
     vehicle = Vehicle.from_mapping(cfg.vehicle)
     world = sim.World(dict(s.effects))
     sim_cfg = sim.SimConfig.from_mapping(OmegaConf.to_container(s.flight, resolve=True))
-    specs = [(name, name.split("_")[0], int(name.rsplit("run", 1)[1])) for name in flight_names(dict(s.runs), str(s.date))]
+    specs = sim.flight_specs(dict(s.runs), str(s.date))
     if not specs:
         raise ConfigError("sim.runs: no flight to simulate")
     raw = simulate_raw(specs, world=world, vehicle=vehicle, cfg=sim_cfg, seed=int(cfg.seed))

@@ -20,13 +20,19 @@ from nanosysid.sim.oracle import Oracle
 from nanosysid.sim.simulator import SimConfig, simulate
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["EFFECTS", "DEFAULT_WORLD", "World", "SimConfig", "simulate_flight", "simulate_flights", "oracle"]
+__all__ = ["EFFECTS", "DEFAULT_WORLD", "World", "SimConfig", "flight_specs", "simulate_flight", "simulate_flights",
+           "oracle"]
 
 DATE = "20250601"
 
 
 def _world(effects: Mapping[str, float] | None) -> World:
     return World(dict(DEFAULT_WORLD) if effects is None else dict(effects))
+
+
+def flight_specs(runs: Mapping[str, int], date: str = DATE) -> list[tuple[str, str, int]]:
+    """``(name, trajectory, run)`` for runs 1..n of each trajectory; names ``<trajectory>_<date>_run<k>``."""
+    return [(f"{traj}_{date}_run{k}", traj, k) for traj, n in runs.items() for k in range(1, int(n) + 1)]
 
 
 def simulate_flights(
@@ -41,8 +47,7 @@ def simulate_flights(
     progress: bool = True,
 ) -> list[Flight]:
     """Simulate ``runs[trajectory]`` runs of each trajectory as one batch."""
-    specs = [(f"{traj}_{date}_run{k}", traj, k) for traj, n in runs.items() for k in range(1, int(n) + 1)]
-    return simulate(specs, world=_world(effects), vehicle=vehicle, cfg=cfg, seed=seed, noise=noise,
+    return simulate(flight_specs(runs, date), world=_world(effects), vehicle=vehicle, cfg=cfg, seed=seed, noise=noise,
                     progress=progress)
 
 

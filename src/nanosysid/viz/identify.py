@@ -8,7 +8,6 @@ import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
 
 from nanosysid.dataio import Flight, atomic_file  # noqa: E402
 from nanosysid.identify import Fit, body_torque, yaw_regressor  # noqa: E402
