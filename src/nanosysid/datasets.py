@@ -1,4 +1,4 @@
-"""The data sources a pipeline can start from, written in the published CSV layout."""
+"""The simulate stage's work: the default dataset, simulated, recorded as bags, and as direct CSVs."""
 
 from __future__ import annotations
 
