@@ -76,6 +76,7 @@ def test_short_training_lowers_the_loss_and_is_deterministic(arch, flights, tmp_
     for (k, a), b in zip(m1.state_dict().items(), m2.state_dict().values()):
         assert torch.equal(a, b), k
     assert s1 == s2
+    assert (tmp_path / "a.pt").read_bytes() == (tmp_path / "b.pt").read_bytes()  # same bytes: DVC's cache relies on it
     # the trained model's validation loss is below the untrained one's
     untrained = build_model(hp)
     untrained.load_state_dict({k: v for k, v in m1.state_dict().items() if k.endswith(("mean", "std"))}, strict=False)

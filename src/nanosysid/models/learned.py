@@ -13,6 +13,7 @@ LSTM's hidden state from ``ỹ_0``), ``step`` (one sample) and ``rollout`` (H sa
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 from typing import Any
 
@@ -148,8 +149,12 @@ def save_checkpoint(model: SequenceModel, hparams: dict[str, Any], path: Path, e
 
     payload = {"format": "nanosysid-model-1", "hparams": hparams, "state_dict": model.state_dict(),
                "extra": extra or {}}
+    # torch names the archive's records after the file it writes to; through a buffer the
+    # name is fixed, so the same weights give the same bytes whatever the (temporary) path
+    buf = io.BytesIO()
+    torch.save(payload, buf)
     with atomic_file(path) as tmp:
-        torch.save(payload, tmp)
+        tmp.write_bytes(buf.getvalue())
 
 
 def load_model(path: str | Path) -> tuple[SequenceModel, dict[str, Any]]:
