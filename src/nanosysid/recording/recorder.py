@@ -30,15 +30,12 @@ from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
-import torch
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
-from scipy.signal import lfilter
 from scipy.spatial.transform import Rotation, Slerp
 
-from nanosysid import so3
 from nanosysid.recording.bags import typestore
 from nanosysid.sim.effects import World
-from nanosysid.sim.simulator import NoiseConfig, RawRecord
+from nanosysid.sim.simulator import NoiseConfig, RawRecord, interp_columns, perturb_attitude, velocity_drift
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["RecorderConfig", "record_flight", "ERPM_PER_RADS"]
@@ -96,18 +93,8 @@ def _header(store, t: float, frame: str):
     return store.types["std_msgs/msg/Header"](stamp=_stamp(store, t), frame_id=frame)
 
 
-def _interp(t_src: np.ndarray, values: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Linear interpolation of each column of ``values (N, C)``."""
-    return np.stack([np.interp(t, t_src, values[:, c]) for c in range(values.shape[1])], axis=1)
-
-
 def _slerp(t_src: np.ndarray, quats: np.ndarray, t: np.ndarray) -> np.ndarray:
     return Slerp(t_src, Rotation.from_quat(quats))(t).as_quat()
-
-
-def _perturb(q: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
-    dq = so3.quat_exp(torch.from_numpy(rng.normal(scale=std, size=(len(q), 3))))
-    return so3.quat_mul(torch.from_numpy(q), dq).numpy()
 
 
 def record_flight(
@@ -147,8 +134,8 @@ def record_flight(
         start = rng.uniform(tau_m[0], tau_m[-1])
         keep &= ~((tau_m >= start) & (tau_m < start + rng.uniform(*cfg.mocap_dropout_len)))
     tau_m = tau_m[keep]
-    p_m = _interp(tau_all, x[:, 0:3], tau_m) + rng.normal(scale=noise.pos, size=(len(tau_m), 3))
-    q_m = _perturb(_slerp(tau_all, x[:, 6:10], tau_m), noise.att, rng)
+    p_m = interp_columns(tau_all, x[:, 0:3], tau_m) + rng.normal(scale=noise.pos, size=(len(tau_m), 3))
+    q_m = perturb_attitude(_slerp(tau_all, x[:, 6:10], tau_m), noise.att, rng)
     Pose, PoseStamped = store.types["geometry_msgs/msg/Pose"], store.types["geometry_msgs/msg/PoseStamped"]
     Point, Quat = store.types["geometry_msgs/msg/Point"], store.types["geometry_msgs/msg/Quaternion"]
 
@@ -167,12 +154,12 @@ def record_flight(
     t_stm = np.arange(k0, k1 + 1) / cfg.onboard_rate
     tau_o = (t_stm - cfg.stm_clock) / (1 + drift)
     n = len(t_stm)
-    p_true = _interp(tau_all, x[:, 0:3], tau_o)
-    v_true = _interp(tau_all, x[:, 3:6], tau_o)
+    p_true = interp_columns(tau_all, x[:, 0:3], tau_o)
+    v_true = interp_columns(tau_all, x[:, 3:6], tau_o)
     q_true = _slerp(tau_all, x[:, 6:10], tau_o)
-    w_true = _interp(tau_all, x[:, 10:13], tau_o)
-    acc_true = _interp(tau_all, raw.wrench[i, :, :3], tau_o) / vehicle.mass
-    om_true = _interp(tau_all, omega, tau_o)
+    w_true = interp_columns(tau_all, x[:, 10:13], tau_o)
+    acc_true = interp_columns(tau_all, raw.wrench[i, :, :3], tau_o) / vehicle.mass
+    om_true = interp_columns(tau_all, omega, tau_o)
 
     def wifi(n_msgs):
         return host(tau_o[:n_msgs]) + cfg.wifi_latency + rng.exponential(cfg.wifi_jitter, size=n_msgs)
@@ -181,12 +168,9 @@ def record_flight(
         return rng.random(n_msgs) < cfg.wifi_loss
 
     # onboard estimate: position and attitude near the truth, velocity with its slow error
-    a = math.exp(-1.0 / (cfg.onboard_rate * noise.vel_drift_tau))
-    drive = rng.normal(scale=noise.vel_drift * math.sqrt(1 - a * a), size=(n, 3))
-    drive[0] = rng.normal(scale=noise.vel_drift, size=3)
-    v_est = v_true + lfilter([1.0], [1.0, -a], drive, axis=0) + rng.normal(scale=noise.vel, size=(n, 3))
+    v_est = v_true + velocity_drift(n, noise, 1.0 / cfg.onboard_rate, rng) + rng.normal(scale=noise.vel, size=(n, 3))
     p_est = p_true + rng.normal(scale=cfg.odom_pos_noise, size=(n, 3))
-    q_est = _perturb(q_true, noise.att, rng)
+    q_est = perturb_attitude(q_true, noise.att, rng)
     T = store.types
     Odometry, Twist, TwistCov, PoseCov, Vec3 = (T["nav_msgs/msg/Odometry"], T["geometry_msgs/msg/Twist"],
                                               T["geometry_msgs/msg/TwistWithCovariance"],
@@ -219,7 +203,7 @@ def record_flight(
 
     # motors: the reading stamped at tick j is the rotor speed motor_lag earlier
     motor_lag = cfg.motor_delay + world.telemetry_delay
-    om_read = _interp(tau_all, omega, tau_o - motor_lag) + rng.normal(scale=noise.rotor, size=(n, 4))
+    om_read = interp_columns(tau_all, omega, tau_o - motor_lag) + rng.normal(scale=noise.rotor, size=(n, 4))
     mcfg = topics["motors"]
     counts = np.clip(np.round(om_read * ERPM_PER_RADS / mcfg["erpm_unit"]), 0, mcfg["invalid"] - 1).astype(np.uint16)
     counts[rng.random(counts.shape) < cfg.motor_missed] = mcfg["invalid"]
@@ -244,7 +228,7 @@ def record_flight(
     # setpoints from the host: the reference while the trajectory runs, all zero outside it
     tau_s = np.arange(math.ceil(tau0 * cfg.setpoint_rate), math.floor(tau1 * cfg.setpoint_rate) + 1) / cfg.setpoint_rate
     inside = (tau_s >= 0) & (tau_s <= raw.durations[i])
-    p_ref = _interp(tau_all, raw.p_ref[i], tau_s) * inside[:, None]
+    p_ref = interp_columns(tau_all, raw.p_ref[i], tau_s) * inside[:, None]
     ident = np.array([0.0, 0.0, 0.0, 1.0])
     streams["setpoint"] = _Stream(
         topics["setpoint"]["topic"], topics["setpoint"]["type"], host(tau_s),

@@ -242,7 +242,7 @@ def flights_from_record(raw: RawRecord, *, world: World, vehicle: Vehicle, cfg: 
         y_true = raw.x[i, idx]
         omega_true = raw.omega[i, idx]
         # recorded rotor speeds lag the true ones: sample the true history d seconds earlier
-        u_rec = _delayed(raw.t, raw.omega[i], raw.t[idx] - world.telemetry_delay)
+        u_rec = interp_columns(raw.t, raw.omega[i], raw.t[idx] - world.telemetry_delay)
         acc_true = raw.wrench[i, idx, :3] / vehicle.mass  # specific force in the body frame
         y, u, acc = y_true.copy(), u_rec, acc_true.copy()
         if noise:
@@ -254,9 +254,25 @@ def flights_from_record(raw: RawRecord, *, world: World, vehicle: Vehicle, cfg: 
     return out
 
 
-def _delayed(t: np.ndarray, signal: np.ndarray, t_query: np.ndarray) -> np.ndarray:
-    """Linear interpolation of each column of ``signal (T, C)`` at ``t_query``."""
-    return np.stack([np.interp(t_query, t, signal[:, c]) for c in range(signal.shape[1])], axis=1)
+def interp_columns(t: np.ndarray, values: np.ndarray, t_query: np.ndarray) -> np.ndarray:
+    """Linear interpolation of each column of ``values (T, C)`` at ``t_query``."""
+    return np.stack([np.interp(t_query, t, values[:, c]) for c in range(values.shape[1])], axis=1)
+
+
+def perturb_attitude(q: np.ndarray, std: float, rng: np.random.Generator) -> np.ndarray:
+    """Quaternions ``(T, 4)`` turned by white rotation-vector noise of ``std`` rad."""
+    dq = so3.quat_exp(torch.from_numpy(rng.normal(scale=std, size=(len(q), 3))))
+    return so3.quat_mul(torch.from_numpy(np.ascontiguousarray(q)), dq).numpy()
+
+
+def velocity_drift(n: int, noise: NoiseConfig, dt: float, rng: np.random.Generator) -> np.ndarray:
+    """``(n, 3)`` samples of the velocity estimate's slow error: first-order Gauss-Markov with
+    std ``noise.vel_drift`` and correlation time ``noise.vel_drift_tau``, started in its
+    stationary distribution."""
+    a = np.exp(-dt / noise.vel_drift_tau)
+    drive = rng.normal(scale=noise.vel_drift * np.sqrt(1 - a * a), size=(n, 3))
+    drive[0] = rng.normal(scale=noise.vel_drift, size=3)
+    return lfilter([1.0], [1.0, -a], drive, axis=0)
 
 
 def _add_noise(y, u, acc, n: NoiseConfig, rng: np.random.Generator, dt: float):
@@ -265,12 +281,8 @@ def _add_noise(y, u, acc, n: NoiseConfig, rng: np.random.Generator, dt: float):
     y[:, 0:3] += rng.normal(scale=n.pos, size=(T, 3))
     y[:, 3:6] += rng.normal(scale=n.vel, size=(T, 3))
     if n.vel_drift > 0:
-        a = np.exp(-dt / n.vel_drift_tau)
-        drive = rng.normal(scale=n.vel_drift * np.sqrt(1 - a * a), size=(T, 3))
-        drive[0] = rng.normal(scale=n.vel_drift, size=3)  # start in the stationary distribution
-        y[:, 3:6] += lfilter([1.0], [1.0, -a], drive, axis=0)
-    dq = so3.quat_exp(torch.from_numpy(rng.normal(scale=n.att, size=(T, 3))))
-    y[:, 6:10] = so3.quat_mul(torch.from_numpy(y[:, 6:10]), dq).numpy()
+        y[:, 3:6] += velocity_drift(T, n, dt, rng)
+    y[:, 6:10] = perturb_attitude(y[:, 6:10], n.att, rng)
     y[:, 10:13] += rng.normal(scale=n.gyro, size=(T, 3))
     u = u + rng.normal(scale=n.rotor, size=u.shape)
     acc = acc + rng.normal(scale=n.accel, size=acc.shape)
