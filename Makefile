@@ -32,6 +32,7 @@ params: $(STAMP)
 
 repro: params
 	$(BIN)/dvc repro
+	$(BIN)/python -m nanosysid.readme
 
 bench: $(STAMP)
 	@for f in benchmarks/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done

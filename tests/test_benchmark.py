@@ -116,14 +116,3 @@ def test_scores_round_trip_through_dict():
     s = benchmark.evaluate(benchmark.model("physics"), flights, horizon=10)
     back = benchmark.Scores.from_dict(s.to_dict())
     assert back.simerr == s.simerr and list(back.per_flight) == ["melon_s_run1"]
-
-
-def test_results_table_bolds_the_best_model_not_the_oracle():
-    from nanosysid.report import results_table_md
-
-    def scores(level):
-        return benchmark.Scores(mae={k: np.full(50, level) for k in "pvRw"}, n_windows=1)
-
-    text = results_table_md({"a": scores(2.0), "b": scores(1.0), "oracle": scores(0.5)})
-    row = {line.split("|")[1].strip(): line for line in text.splitlines()[2:]}
-    assert "**1.0000**" in row["b"] and "**" not in row["a"] and "**" not in row["oracle (physical limit)"]

@@ -10,7 +10,8 @@ import pytest
 from nanosysid import config
 from nanosysid.cli import run_stage
 from nanosysid.dataio import read_flight_csv
-from stages import evaluate, extract, filter as filter_stage, identify, quality, results, simulate, split, sync, train
+from stages import (evaluate, extract, filter as filter_stage, identify, quality, report, simulate, split, sync,
+                    train, visualize)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -47,6 +48,12 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"models.physics_full.identified={root / 'physics' / 'params.json'}",
         f"models.phys_res.identified={root / 'physics' / 'params.json'}",
         f"paths.train_logs={root / 'train'}",
+        f"report.markdown={root / 'report' / 'benchmark.md'}",
+        f"report.latex={root / 'report' / 'benchmark.tex'}",
+        f"report.figures={root / 'report' / 'figures'}",
+        f"report.plots={root / 'report' / 'mae.csv'}",
+        "report.lineplot.window=[0.5,2.5]",
+        f"visualize.out_dir={root / 'rerun'}",
         *(f"models.{m}.checkpoint={root / 'models' / m / 'model.pt'}" for m in LEARNED),
         *TINY_SIM,
         *extra,
@@ -107,7 +114,7 @@ def test_split_and_evaluate(tiny):
     simerr = {}
     for model in ("naive", "physics", "physics_full", "oracle", *LEARNED):
         assert run(evaluate, tiny, name=model) == 0
-        m = json.loads((tiny / "eval" / model / "metrics.json").read_text())
+        m = json.loads((tiny / "eval" / model / "scores.json").read_text())
         n = summary["test"]["samples"] - 2 * 50
         assert m["n_windows"] == n and len(m["mae"]["p"]) == 50
         assert set(m["per_flight"]) == {"melon_20250601_run1", "melon_20250601_run2"}
@@ -119,15 +126,81 @@ def test_split_and_evaluate(tiny):
     assert simerr["phys_res"]["p"] < 1.5 * simerr["physics"]["p"]
 
 
-def test_results_table_lists_every_model(tiny):
+def evaluated(tiny):
     for model in ("naive", "physics", "physics_full", "oracle", *LEARNED):
         if not (tiny / "eval" / model / "metrics.json").exists():
             assert run(evaluate, tiny, name=model) == 0
-    assert run(results, tiny, f"paths.results={tiny / 'results.md'}") == 0
-    text = (tiny / "results.md").read_text()
-    for model in ("naive", "physics", "physics_full", "residual", "phys_res", "lstm"):
-        assert f"| {model} |" in text
-    assert "| oracle (physical limit) |" in text and "**" in text
+    return tiny
+
+
+def md_table(text, heading):
+    """Rows of the first Markdown table after ``heading``: {first cell: [other cells]}."""
+    lines = text[text.index(heading):].splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("|"))
+    rows = {}
+    for line in lines[start + 2:]:
+        if not line.startswith("|"):
+            break
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        rows[cells[0]] = cells[1:]
+    return rows
+
+
+def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
+    tiny = evaluated(tiny)
+    assert run(report, tiny) == 0
+    text = (tiny / "report" / "benchmark.md").read_text()
+    rows = md_table(text, "## Multi-step prediction")
+    assert set(rows) == {"naive", "physics", "physics_full", "oracle (physical limit)", *LEARNED}
+    for label, cells in rows.items():
+        m = json.loads((tiny / "eval" / label.split()[0] / "metrics.json").read_text())
+        expected = [v for k in ("p", "v", "R", "w") for v in (m["h1"][k], m["h10"][k], m["h50"][k], m["simerr"][k])]
+        assert [float(c.strip("*")) for c in cells] == pytest.approx(expected, abs=5e-5)
+    assert any("**" in c for c in rows["physics"] + rows["phys_res"] + rows["naive"])
+    assert not any(c.startswith("**") for c in rows["oracle (physical limit)"])
+    costs = md_table(text, "## Cost of one step")
+    for m in LEARNED:
+        summary = json.loads((tiny / "train" / m / "summary.json").read_text())
+        assert float(costs[m][0]) == pytest.approx(summary["params"] / 1e3, abs=0.05)
+        # about 2 FLOPs per weight used in a step (the LSTM's initialisation network is not)
+        assert 1.5 < float(costs[m][1]) / (summary["params"] / 1e3) < 2.1
+    assert costs["naive"][0] == "–" and costs["physics"][2] == "1.79"
+    tex = (tiny / "report" / "benchmark.tex").read_text()
+    assert tex.count(r"\begin{tabular}") == 2 and r"oracle (physical limit)" in tex and r"\textbf{" in tex
+    for fig in ("mae_horizon", "predictions", "trajectories"):
+        assert f"(figures/{fig}.png)" in text
+        assert (tiny / "report" / "figures" / f"{fig}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    curves = (tiny / "report" / "mae.csv").read_text().splitlines()
+    assert curves[0] == "h,model,p,v,R,w" and len(curves) == 1 + 7 * 50
+    m = json.loads((tiny / "eval" / "lstm" / "scores.json").read_text())
+    h10 = next(line for line in curves if line.startswith("10,lstm,")).split(",")
+    assert float(h10[4]) == pytest.approx(m["mae"]["R"][9], rel=1e-6)
+
+
+def test_visualize_writes_a_recording_per_test_flight(tiny):
+    import rerun.chunk as rc
+
+    assert run(visualize, tiny, "visualize.stride=40") == 0
+    files = sorted(p.name for p in (tiny / "rerun").iterdir())
+    assert files == ["melon_20250601_run1.rrd", "melon_20250601_run2.rrd"]
+    T = len(read_flight_csv(tiny / "split" / "test" / "melon_20250601_run1.csv"))
+    n = T - 50
+    S = len(range(0, n, 40))
+    store = rc.RrdReader(tiny / "rerun" / files[0]).store().stream().collect()
+    rows = {}
+    for chunk in store.stream():
+        if not chunk.is_static:
+            rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
+    models = ("naive", "physics", "physics_full", "oracle", *LEARNED)
+    expected = {"/world/drone": T, "/world/rollouts/truth": S}
+    for m in models:
+        expected[f"/world/rollouts/{m}"] = S
+        for q in ("p", "v", "R", "w"):
+            expected[f"/signals/{q}/{m}"] = n
+            expected[f"/errors/{q}/{m}"] = n
+    for q in ("p", "v", "R", "w"):
+        expected[f"/signals/{q}/truth"] = T
+    assert rows == expected
 
 
 def test_training_logs_every_epoch_with_dvclive(tiny):
@@ -156,7 +229,7 @@ def test_stage_runs_as_a_module_with_overrides(tiny, tmp_path, venv_env):
     r = subprocess.run(["python", "-m", "stages.evaluate", "naive", *args], cwd=ROOT, env=venv_env,
                        capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
-    m = json.loads((tmp_path / "eval" / "naive" / "metrics.json").read_text())
+    m = json.loads((tmp_path / "eval" / "naive" / "scores.json").read_text())
     assert m["horizon"] == 10
 
 
@@ -191,7 +264,8 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     for other in ("simulate", "extract", "sync", "filter", "split", "identify", "evaluate@naive", "evaluate@oracle",
                   "train@lstm", "evaluate@lstm"):
         assert f"Running stage '{other}'" not in out
-    assert out.count("Running stage") == 2, out  # evaluate@physics and the table of all models
+    # evaluate@physics, and the report and recordings that show every model
+    assert out.count("Running stage") == 3 and "Running stage 'report'" in out and "Running stage 'visualize'" in out
     # back to the earlier value: restored from the run cache, not recomputed
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=1")
     assert "Stage 'evaluate@physics' is cached - skipping run" in out
@@ -199,6 +273,6 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     # a learned model: retrains and re-evaluates that model alone, and comes back from the cache
     out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.hidden=48")
     assert "Running stage 'train@lstm'" in out and "Running stage 'evaluate@lstm'" in out
-    assert out.count("Running stage") == 3, out  # and the table of all models
+    assert out.count("Running stage") == 4, out  # and the report and recordings
     out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.hidden=62")
     assert "Stage 'train@lstm' is cached - skipping run" in out and "Running stage" not in out

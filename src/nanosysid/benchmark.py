@@ -25,7 +25,7 @@ import numpy as np
 from nanosysid import metrics
 from nanosysid.dataio import DataError, Flight, read_flight_csv
 
-__all__ = ["Benchmark", "DataError", "Flight", "Scores", "evaluate", "load", "model", "score", "windows"]
+__all__ = ["Benchmark", "DataError", "Flight", "Scores", "evaluate", "load", "model", "predictions", "score", "windows"]
 
 Predictor = Callable[[Any, Any], Any]
 
@@ -131,21 +131,42 @@ def _to_numpy(a) -> np.ndarray:
     return np.asarray(a, dtype=np.float64)
 
 
-def _score_flight(predict: Predictor, flight: Flight, horizon: int, batch_size: int) -> Scores:
-    y0, u, y = windows(flight, horizon)
-    n = len(y0)
-    sums = {k: np.zeros(horizon) for k in metrics.QUANTITIES}
+def _predicted_batches(predict: Predictor, y0: np.ndarray, u: np.ndarray, batch_size: int, name: str):
+    """``(slice, prediction)`` over batches of windows, with the predictor's shape checked."""
+    n, horizon = u.shape[0], u.shape[1]
     for s in range(0, n, batch_size):
         b = slice(s, min(s + batch_size, n))
         pred = _to_numpy(predict(y0[b], u[b]))
         if pred.shape != (b.stop - b.start, horizon, 13):
             raise ValueError(
-                f"predictor returned shape {pred.shape} on flight {flight.name}; "
+                f"predictor returned shape {pred.shape} on flight {name}; "
                 f"expected {(b.stop - b.start, horizon, 13)}"
             )
+        yield b, pred
+
+
+def _score_flight(predict: Predictor, flight: Flight, horizon: int, batch_size: int) -> Scores:
+    y0, u, y = windows(flight, horizon)
+    n = len(y0)
+    sums = {k: np.zeros(horizon) for k in metrics.QUANTITIES}
+    for b, pred in _predicted_batches(predict, y0, u, batch_size, flight.name):
         for k, e in metrics.errors(y[b], pred).items():
             sums[k] += e.sum(axis=0)
     return Scores(mae={k: v / n for k, v in sums.items()}, n_windows=n)
+
+
+def predictions(predict: Predictor, flight: Flight, *, horizon: int = 50, batch_size: int = 8192,
+                starts: np.ndarray | None = None) -> np.ndarray:
+    """The predictor's open-loop rollouts on a flight, ``(N, H, 13)``: row ``i`` starts at
+    sample ``starts[i]`` (every admissible start, ``0..T-H-1``, by default) and holds the
+    predictions of samples ``starts[i] + 1 .. starts[i] + H``."""
+    y0, u, _ = windows(flight, horizon)
+    if starts is not None:
+        y0, u = y0[starts], u[starts]
+    out = np.empty((len(y0), horizon, 13))
+    for b, pred in _predicted_batches(predict, y0, u, batch_size, flight.name):
+        out[b] = pred
+    return out
 
 
 def evaluate(

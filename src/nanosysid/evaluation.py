@@ -13,22 +13,25 @@ from nanosysid import benchmark, report
 from nanosysid.config import ConfigError
 from nanosysid.dataio import atomic_file
 from nanosysid.models import build_from_config
+from nanosysid.export.cost import step_cost
 
 __all__ = ["evaluate_model", "metrics_payload"]
 
 log = logging.getLogger(__name__)
 
 
-def metrics_payload(name: str, scores: benchmark.Scores, table_horizons: list[int]) -> dict[str, Any]:
-    """The content of ``metrics.json``: headline figures first, then curves and flights."""
-    at = {f"h{h}": scores.at(h) for h in table_horizons}
-    return {"model": name, "simerr": scores.simerr, "at": at, **{k: v for k, v in scores.to_dict().items() if k != "simerr"}}
+def metrics_payload(scores: benchmark.Scores, table_horizons: list[int], cost: dict[str, Any]) -> dict[str, Any]:
+    """The content of ``metrics.json``, the headline figures DVC shows and compares: SimErr,
+    the MAE at the table's horizons, and the model's cost per step."""
+    return {"simerr": scores.simerr, **{f"h{h}": scores.at(h) for h in table_horizons},
+            "cost": {k: v for k, v in cost.items() if k in ("params", "flops")}}
 
 
 def evaluate_model(cfg: DictConfig, name: str) -> benchmark.Scores:
     """Score ``cfg.models[name]`` on the test flights of ``cfg.paths.split``.
 
-    Writes ``<paths.eval>/<name>/metrics.json`` and ``table.md``.
+    Writes to ``<paths.eval>/<name>/``: ``scores.json`` (MAE curves, per flight),
+    ``metrics.json`` (headline figures) and ``table.md``.
     """
     if name not in cfg.models:
         raise ConfigError(f"models.{name}: no such model in the config (known: {', '.join(cfg.models)})")
@@ -40,9 +43,11 @@ def evaluate_model(cfg: DictConfig, name: str) -> benchmark.Scores:
     out = Path(cfg.paths.eval) / name
     # table horizons beyond a shortened evaluation horizon have no value to show
     table_h = [h for h in cfg.eval.table_horizons if h <= horizon]
-    payload = metrics_payload(name, scores, table_h)
+    full = {"model": name, **scores.to_dict()}
+    with atomic_file(out / "scores.json") as tmp:
+        tmp.write_text(json.dumps(full, indent=1) + "\n")
     with atomic_file(out / "metrics.json") as tmp:
-        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+        tmp.write_text(json.dumps(metrics_payload(scores, table_h, step_cost(predict)), indent=1) + "\n")
     with atomic_file(out / "table.md") as tmp:
         tmp.write_text(report.results_table_md({name: scores}, table_h))
     log.info("evaluate %s: %d windows, SimErr %s", name, scores.n_windows,

@@ -1,0 +1,1 @@
+"""Models on the microcontroller: what a step costs, ONNX, generated C, the emulated STM32."""

@@ -1,0 +1,126 @@
+"""Rerun recordings of a flight: the measured trajectory and pose in 3D, each model's rollouts
+from a regular subset of starts, and time series of true and predicted signals and errors.
+
+Every entity is logged as whole columns (``rerun.send_columns``), one call per entity, and
+the layout travels in the file as its default blueprint, so the recording opens ready to read
+(``rerun reports/rerun/<flight>.rrd``). Nothing opens a viewer here.
+
+Entities, for a flight of T samples, horizon H and S rollout starts:
+
+- ``world/trajectory``: the measured path (static); ``world/drone``: its pose, T rows;
+- ``world/rollouts/truth`` and ``world/rollouts/<model>``: at each start, the next H
+  positions measured and predicted, S rows;
+- ``signals/<q>/truth``: the measured signal, T rows; ``signals/<q>/<model>``: the
+  H-step-ahead prediction ``ŷ(t | t-H)``, T - H rows (``q`` in p, v, R, w; R as roll,
+  pitch, yaw in degrees);
+- ``errors/<q>/<model>``: the error of that prediction (norm; geodesic angle for R), T - H rows.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+
+from nanosysid import metrics
+from nanosysid.dataio import Flight, atomic_file
+from nanosysid.viz.signals import SIGNALS, ahead, model_color, readable
+
+__all__ = ["write_recording", "rollout_starts", "APPLICATION_ID"]
+
+APPLICATION_ID = "nanosysid"
+
+
+def rollout_starts(n_windows: int, stride: int) -> np.ndarray:
+    """Start samples of the rollouts drawn in 3D: every ``stride``-th window."""
+    return np.arange(0, n_windows, max(1, int(stride)))
+
+
+def _rgb(color: str) -> list[int]:
+    return [int(color[i:i + 2], 16) for i in (1, 3, 5)]
+
+
+def _blueprint(models: list[str]):
+    import rerun.blueprint as rrb
+
+    series = [rrb.TimeSeriesView(origin=f"signals/{k}", name=f"{SIGNALS[k][0]} [{SIGNALS[k][1]}]")
+              for k in SIGNALS]
+    errors = [rrb.TimeSeriesView(origin=f"errors/{k}", name=f"error of {SIGNALS[k][0]} [{metrics.UNITS[k]}]")
+              for k in SIGNALS]
+    return rrb.Blueprint(
+        rrb.Horizontal(
+            rrb.Spatial3DView(origin="world", name="trajectory, pose and rollouts"),
+            rrb.Vertical(rrb.Tabs(*series, name="signals"), rrb.Tabs(*errors, name="errors")),
+            column_shares=[1, 1],
+        ),
+        rrb.TimePanel(state="expanded"),
+        collapse_panels=True,
+    )
+
+
+def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Path, *, stride: int = 50) -> None:
+    """Write ``path`` (``.rrd``) for one flight.
+
+    Args:
+        flight: The measured flight.
+        rollouts: Each model's predictions from every start, ``(T - H, H, 13)``
+            (:func:`nanosysid.benchmark.predictions`).
+        path: Output file; written to a temporary name, then renamed.
+        stride: Draw a 3D rollout from every ``stride``-th start.
+    """
+    import rerun as rr
+
+    T = len(flight)
+    n, H = next(iter(rollouts.values())).shape[:2]
+    t = flight.t - flight.t[0]
+    starts = rollout_starts(n, stride)
+    # the recording id is the flight's, so the same flight and models give the same file
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=f"{APPLICATION_ID}-{flight.name}", send_properties=False)
+    with atomic_file(Path(path)) as tmp:
+        rec.save(tmp, default_blueprint=_blueprint(list(rollouts)))
+        every = [rr.TimeColumn("time", duration=t)]
+        predicted = [rr.TimeColumn("time", duration=t[H:H + n])]
+        at_starts = [rr.TimeColumn("time", duration=t[starts])]
+
+        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
+        rec.log("world/trajectory", rr.LineStrips3D([flight.y[:, :3]], colors=[[150, 150, 150]], radii=0.002),
+                static=True)
+        rec.send_columns("world/drone", indexes=every,
+                         columns=rr.Transform3D.columns(translation=flight.y[:, :3], quaternion=flight.y[:, 6:10]))
+        # body axes of the drone, 8 cm long: x red, y green, z blue
+        rec.log("world/drone/axes", rr.Arrows3D(vectors=0.08 * np.eye(3),
+                                                colors=[[230, 40, 40], [40, 180, 40], [40, 80, 230]]), static=True)
+
+        # the measured next H positions from each start, then each model's prediction of them
+        truth_paths = np.stack([flight.y[s:s + H + 1, :3] for s in starts])  # (S, H+1, 3)
+        rec.log("world/rollouts/truth", rr.LineStrips3D.from_fields(colors=_rgb(model_color("truth")), radii=0.003),
+                static=True)
+        rec.send_columns("world/rollouts/truth", indexes=at_starts,
+                         columns=rr.LineStrips3D.columns(strips=list(truth_paths)))
+        for i, (name, pred) in enumerate(rollouts.items()):
+            paths = np.concatenate([flight.y[starts, None, :3], pred[starts, :, :3]], axis=1)  # (S, H+1, 3)
+            rec.log(f"world/rollouts/{name}", rr.LineStrips3D.from_fields(colors=_rgb(model_color(name, i)),
+                                                                         radii=0.003), static=True)
+            rec.send_columns(f"world/rollouts/{name}", indexes=at_starts,
+                             columns=rr.LineStrips3D.columns(strips=list(paths)))
+
+        truth = readable(flight.y)
+        for k, (label, _, axes) in SIGNALS.items():
+            rec.log(f"signals/{k}/truth", rr.SeriesLines(names=[f"{a} measured" for a in axes],
+                                                         colors=[_rgb(model_color("truth"))] * 3), static=True)
+            rec.send_columns(f"signals/{k}/truth", indexes=every, columns=rr.Scalars.columns(scalars=truth[k]))
+        for i, (name, pred) in enumerate(rollouts.items()):
+            y_hat = ahead(pred, H, T)[H:H + n]  # (n, 13): ŷ(t | t-H)
+            err = metrics.errors(flight.y[None, H:H + n], y_hat[None])
+            shown = readable(y_hat)
+            color = _rgb(model_color(name, i))
+            for k, (label, _, axes) in SIGNALS.items():
+                rec.log(f"signals/{k}/{name}", rr.SeriesLines(names=[f"{a} {name}" for a in axes], colors=[color] * 3),
+                        static=True)
+                rec.send_columns(f"signals/{k}/{name}", indexes=predicted, columns=rr.Scalars.columns(scalars=shown[k]))
+                rec.log(f"errors/{k}/{name}", rr.SeriesLines(names=[name], colors=[color]), static=True)
+                rec.send_columns(f"errors/{k}/{name}", indexes=predicted,
+                                 columns=rr.Scalars.columns(scalars=err[k][0]))
+        rec.flush()
+        rec.disconnect()
