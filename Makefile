@@ -12,7 +12,7 @@ export PATH := $(abspath $(BIN)):$(PATH)
 export DVC_NO_ANALYTICS := 1
 export PYTHONHASHSEED := 0
 
-.PHONY: venv test repro params bench clean-venv
+.PHONY: venv test repro params bench clean-venv toolchain
 
 venv: $(STAMP)
 
@@ -22,7 +22,21 @@ $(STAMP): requirements.txt constraints.txt pyproject.toml
 	$(PIP) --no-deps -e .
 	@touch $@
 
-test: $(STAMP)
+# The ARM toolchain and QEMU for the mcu stages: installed through apt when missing and this
+# is root (without --no-install-recommends they take 3 GB); otherwise the mcu stages and
+# their tests say what to install.
+ARM_PACKAGES := gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm gcc libc6-dev
+toolchain:
+	@if command -v arm-none-eabi-gcc >/dev/null && command -v qemu-system-arm >/dev/null && command -v gcc >/dev/null; then \
+	    :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing $(ARM_PACKAGES)"; \
+	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(ARM_PACKAGES) >/dev/null; \
+	else \
+	    echo "note: the mcu stages need: apt-get install --no-install-recommends $(ARM_PACKAGES) (as root)"; \
+	fi
+
+test: $(STAMP) toolchain
 	$(BIN)/python -m pytest
 
 # DVC composes params.yaml from conf/ only on `dvc exp run`; compose it here too so an
@@ -30,7 +44,7 @@ test: $(STAMP)
 params: $(STAMP)
 	$(BIN)/python -m nanosysid.config compose
 
-repro: params
+repro: params toolchain
 	$(BIN)/dvc repro
 	$(BIN)/python -m nanosysid.readme
 

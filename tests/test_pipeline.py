@@ -10,8 +10,8 @@ import pytest
 from nanosysid import config
 from nanosysid.cli import run_stage
 from nanosysid.dataio import read_flight_csv
-from stages import (evaluate, extract, filter as filter_stage, identify, quality, report, simulate, split, sync,
-                    train, visualize)
+from stages import (evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report, simulate,
+                    split, sync, train, visualize)
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -21,6 +21,8 @@ TINY_SIM = [
     "sim.flight.preroll=0.5",
     "sim.flight.trajectories.chirp.duration=3.0",
     "sim.flight.trajectories.melon={duration: 3.0, circle_time: 2.0, return_time: 0.5}",
+    "export.mcu.start=10",
+    "export.mcu.steps=20",
 ] + [f"models.{m}.train.{k}" for m in ("residual", "phys_res", "lstm")
      for k in ("epochs=2", "stride=10", "val_runs=[2]")]
 LEARNED = ("residual", "phys_res", "lstm")
@@ -54,6 +56,8 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"report.plots={root / 'report' / 'mae.csv'}",
         "report.lineplot.window=[0.5,2.5]",
         f"visualize.out_dir={root / 'rerun'}",
+        f"export.out_dir={root / 'models'}",
+        f"paths.export={root / 'export'}",
         *(f"models.{m}.checkpoint={root / 'models' / m / 'model.pt'}" for m in LEARNED),
         *TINY_SIM,
         *extra,
@@ -177,6 +181,29 @@ def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
     assert float(h10[4]) == pytest.approx(m["mae"]["R"][9], rel=1e-6)
 
 
+@pytest.mark.parametrize("model", ["physics", "lstm"])
+def test_export_and_mcu_stages(tiny, model):
+    from nanosysid.export import ToolchainError
+    from nanosysid.export.mcu import require_toolchain
+
+    assert run(export, tiny, name=model) == 0
+    out = tiny / "models" / model / "export"
+    summary = json.loads((out / "export.json").read_text())
+    assert summary["onnx"]["max_abs_diff"] <= 1e-5 and summary["onnx"]["samples"] == 1000
+    assert (out / "step.onnx").exists() and (out / "init.onnx").exists() == (model == "lstm")
+    assert "void nsi_step(" in (out / "model.c").read_text()
+    try:
+        require_toolchain()
+    except ToolchainError as e:
+        pytest.skip(str(e))
+    assert run(mcu, tiny, name=model) == 0
+    result = json.loads((tiny / "export" / f"{model}.json").read_text())
+    assert result["steps"] == 20 and result["max_rel_diff"] <= 1e-5
+    assert result["t_est_ms"] == pytest.approx(result["instructions"] / 168e3)
+    assert result["t_est_ms"] < 0.5 * result["paper_t_inf_ms"]
+    assert (tiny / "models" / model / "mcu" / "firmware.elf").exists()
+
+
 def test_visualize_writes_a_recording_per_test_flight(tiny):
     import rerun.chunk as rc
 
@@ -264,8 +291,10 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     for other in ("simulate", "extract", "sync", "filter", "split", "identify", "evaluate@naive", "evaluate@oracle",
                   "train@lstm", "evaluate@lstm"):
         assert f"Running stage '{other}'" not in out
-    # evaluate@physics, and the report and recordings that show every model
-    assert out.count("Running stage") == 3 and "Running stage 'report'" in out and "Running stage 'visualize'" in out
+    # evaluate@physics, its export and MCU run, and the report and recordings that show every model
+    for stage in ("export@physics", "mcu@physics", "report", "visualize"):
+        assert f"Running stage '{stage}'" in out
+    assert out.count("Running stage") == 5, out
     # back to the earlier value: restored from the run cache, not recomputed
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=1")
     assert "Stage 'evaluate@physics' is cached - skipping run" in out
@@ -273,6 +302,6 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     # a learned model: retrains and re-evaluates that model alone, and comes back from the cache
     out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.hidden=48")
     assert "Running stage 'train@lstm'" in out and "Running stage 'evaluate@lstm'" in out
-    assert out.count("Running stage") == 4, out  # and the report and recordings
+    assert out.count("Running stage") == 6, out  # its export, MCU run, the report and recordings
     out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.hidden=62")
     assert "Stage 'train@lstm' is cached - skipping run" in out and "Running stage" not in out

@@ -16,6 +16,7 @@ from omegaconf import DictConfig
 
 from nanosysid.config import ConfigError, load_params
 from nanosysid.dataio import DataError
+from nanosysid.export import ExportError, ToolchainError
 
 __all__ = ["run_stage"]
 
@@ -44,7 +45,7 @@ def run_stage(
             main(cfg, getattr(args, name_arg))
         else:
             main(cfg)
-    except (DataError, ConfigError) as e:
+    except (DataError, ConfigError, ExportError, ToolchainError) as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
     return 0
