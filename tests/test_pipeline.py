@@ -10,7 +10,7 @@ import pytest
 from nanosysid import config
 from nanosysid.cli import run_stage
 from nanosysid.dataio import read_flight_csv
-from stages import (evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report, simulate,
+from stages import (discover, evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report, simulate,
                     split, sync, train, visualize)
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -58,6 +58,9 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"visualize.out_dir={root / 'rerun'}",
         f"export.out_dir={root / 'models'}",
         f"paths.export={root / 'export'}",
+        f"discover.out_dir={root / 'discovered'}",
+        f"discover.report_dir={root / 'discovery'}",
+        f"models.discovered.model={root / 'discovered' / 'model.json'}",
         *(f"models.{m}.checkpoint={root / 'models' / m / 'model.pt'}" for m in LEARNED),
         *TINY_SIM,
         *extra,
@@ -131,7 +134,9 @@ def test_split_and_evaluate(tiny):
 
 
 def evaluated(tiny):
-    for model in ("naive", "physics", "physics_full", "oracle", *LEARNED):
+    if not (tiny / "discovered" / "model.json").exists():
+        assert run(discover, tiny) == 0
+    for model in ("naive", "physics", "physics_full", "oracle", *LEARNED, "discovered"):
         if not (tiny / "eval" / model / "metrics.json").exists():
             assert run(evaluate, tiny, name=model) == 0
     return tiny
@@ -155,7 +160,7 @@ def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
     assert run(report, tiny) == 0
     text = (tiny / "report" / "benchmark.md").read_text()
     rows = md_table(text, "## Multi-step prediction")
-    assert set(rows) == {"naive", "physics", "physics_full", "oracle (physical limit)", *LEARNED}
+    assert set(rows) == {"naive", "physics", "physics_full", "oracle (physical limit)", *LEARNED, "discovered"}
     for label, cells in rows.items():
         m = json.loads((tiny / "eval" / label.split()[0] / "metrics.json").read_text())
         expected = [v for k in ("p", "v", "R", "w") for v in (m["h1"][k], m["h10"][k], m["h50"][k], m["simerr"][k])]
@@ -175,7 +180,7 @@ def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
         assert f"(figures/{fig}.png)" in text
         assert (tiny / "report" / "figures" / f"{fig}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     curves = (tiny / "report" / "mae.csv").read_text().splitlines()
-    assert curves[0] == "h,model,p,v,R,w" and len(curves) == 1 + 7 * 50
+    assert curves[0] == "h,model,p,v,R,w" and len(curves) == 1 + 8 * 50
     m = json.loads((tiny / "eval" / "lstm" / "scores.json").read_text())
     h10 = next(line for line in curves if line.startswith("10,lstm,")).split(",")
     assert float(h10[4]) == pytest.approx(m["mae"]["R"][9], rel=1e-6)
@@ -204,8 +209,24 @@ def test_export_and_mcu_stages(tiny, model):
     assert (tiny / "models" / model / "mcu" / "firmware.elf").exists()
 
 
+def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
+    tiny = evaluated(tiny)
+    model = json.loads((tiny / "discovered" / "model.json").read_text())
+    result = json.loads((tiny / "discovery" / "result.json").read_text())
+    assert model["format"] == "nanosysid-discovered-1" and list(model["effects"]) == [
+        f["name"] for f in result["found"] if f["name"] != "telemetry_delay"]
+    assert result["model"] == "+".join(["physics"] + [f["name"] for f in result["found"]])
+    assert set(result["simerr"]) == {"nominal", "discovered", "oracle"}
+    scores = json.loads((tiny / "eval" / "discovered" / "scores.json").read_text())
+    assert scores["simerr"] == pytest.approx(result["simerr"]["discovered"])
+    text = (tiny / "discovery" / "report.md").read_text()
+    assert "## Where the nominal model and the measurements disagree" in text and "Round 1:" in text
+
+
 def test_visualize_writes_a_recording_per_test_flight(tiny):
     import rerun.chunk as rc
+
+    evaluated(tiny)
 
     assert run(visualize, tiny, "visualize.stride=40") == 0
     files = sorted(p.name for p in (tiny / "rerun").iterdir())
@@ -218,7 +239,7 @@ def test_visualize_writes_a_recording_per_test_flight(tiny):
     for chunk in store.stream():
         if not chunk.is_static:
             rows[chunk.entity_path] = rows.get(chunk.entity_path, 0) + chunk.num_rows
-    models = ("naive", "physics", "physics_full", "oracle", *LEARNED)
+    models = ("naive", "physics", "physics_full", "oracle", *LEARNED, "discovered")
     expected = {"/world/drone": T, "/world/rollouts/truth": S}
     for m in models:
         expected[f"/world/rollouts/{m}"] = S

@@ -12,7 +12,7 @@ import numpy as np
 import torch
 from torch import Tensor
 
-__all__ = ["rollout", "StepPredictor", "as_tensor"]
+__all__ = ["rollout", "StepPredictor", "as_tensor", "advance_inputs"]
 
 StepFn = Callable[[Tensor, Tensor], Tensor]
 
@@ -34,6 +34,20 @@ def rollout(step: StepFn, y0: Tensor, u: Tensor) -> Tensor:
         y = step(y, u[:, h])
         ys.append(y)
     return torch.stack(ys, dim=1)
+
+
+def advance_inputs(u: Tensor, shift: float) -> Tensor:
+    """Inputs ``(B, H, m)`` read ``shift`` samples later along the horizon: the value at
+    ``h + shift``, linearly interpolated, the last sample held beyond the window. Undoes a
+    delay of ``shift`` samples in recorded inputs."""
+    if shift == 0:
+        return u
+    H = u.shape[1]
+    pos = torch.clamp(torch.arange(H, dtype=u.dtype) + shift, min=0, max=H - 1)
+    lo = pos.floor().long()
+    hi = torch.clamp(lo + 1, max=H - 1)
+    w = (pos - lo).view(1, H, 1)
+    return u[:, lo] * (1 - w) + u[:, hi] * w
 
 
 def as_tensor(a, dtype: torch.dtype) -> Tensor:

@@ -65,12 +65,20 @@ def _learned(*, checkpoint: str, **architecture: Any) -> Callable:
     return LearnedPredictor(model, name=ckpt["hparams"]["arch"])
 
 
+def _discovered(*, model: str) -> Callable:
+    """The nominal model with the effects the discover stage named (``model.json``)."""
+    from nanosysid.discover.model import load_model
+
+    return load_model(model)
+
+
 MODEL_KINDS: dict[str, Callable[..., Callable]] = {
     "naive": _naive,
     "physics": _physics(angular_dynamics=False, name="physics"),
     "physics_full": _physics(angular_dynamics=True, name="physics_full"),
     "oracle": _oracle,
     "learned": _learned,
+    "discovered": _discovered,
 }
 
 

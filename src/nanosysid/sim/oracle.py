@@ -15,7 +15,7 @@ import torch
 from torch import Tensor
 
 from nanosysid import dynamics, so3
-from nanosysid.rollout import as_tensor
+from nanosysid.rollout import advance_inputs, as_tensor
 from nanosysid.sim.effects import World
 from nanosysid.vehicle import Vehicle
 
@@ -38,15 +38,7 @@ class Oracle:
 
     def _true_rotor_speeds(self, u: Tensor) -> Tensor:
         """Undo the telemetry delay: the true speed at sample h was recorded at h + delay."""
-        shift = self.rotor_delay / self.dt
-        if shift == 0:
-            return u
-        H = u.shape[1]
-        pos = torch.clamp(torch.arange(H, dtype=u.dtype) + shift, max=H - 1)
-        lo = pos.floor().long()
-        hi = torch.clamp(lo + 1, max=H - 1)
-        w = (pos - lo).view(1, H, 1)
-        return u[:, lo] * (1 - w) + u[:, hi] * w
+        return advance_inputs(u, self.rotor_delay / self.dt)
 
     @torch.no_grad()
     def __call__(self, y0, u) -> np.ndarray:

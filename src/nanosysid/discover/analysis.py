@@ -1,0 +1,134 @@
+"""Where the nominal model and the measurements disagree, before and after the named effects:
+per channel, per flight regime, per frequency band, and in the benchmark's rollouts."""
+
+from __future__ import annotations
+
+from typing import Any, Sequence
+
+import numpy as np
+import torch
+from scipy.signal import welch
+
+from nanosysid import benchmark, so3
+from nanosysid.dataio import Flight
+from nanosysid.discover.candidates import CHANNELS
+from nanosysid.discover.fit import EDGE, Fitter, flight_data
+
+__all__ = ["disagreement", "REGIMES", "BANDS"]
+
+BANDS = ((0.0, 1.0), (1.0, 5.0), (5.0, 15.0))  # Hz
+
+
+def _regime_variables(f: Flight) -> dict[str, np.ndarray]:
+    """Speed (m/s), tilt (deg), throttle (ΣΩ² over its mean) and rotor-speed rate (rad/s²)."""
+    R = so3.quat_to_rotmat(torch.from_numpy(np.ascontiguousarray(f.y[:, 6:10]))).numpy()
+    om2 = (f.u ** 2).sum(axis=1)
+    dt = float(np.median(np.diff(f.t)))
+    return {"speed [m/s]": np.linalg.norm(f.y[:, 3:6], axis=1),
+            "tilt [deg]": np.degrees(np.arccos(np.clip(R[:, 2, 2], -1, 1))),
+            "throttle [ΣΩ² / mean]": om2 / om2.mean(),
+            "rotor-speed rate [rad/s²]": np.abs(np.gradient(f.u, dt, axis=0)).mean(axis=1)}
+
+
+REGIMES = ("speed [m/s]", "tilt [deg]", "throttle [ΣΩ² / mean]", "rotor-speed rate [rad/s²]")
+
+
+def _residuals(data, names, theta, weights):
+    """Weighted residual before (nominal) and after the fitted effects, per flight, (T, 6) each."""
+    fit = Fitter(data, weights)
+    before = [d.r * weights for d in data]
+    after = []
+    for d in data:
+        X = np.concatenate([d.features[n] for n in names], axis=-1)  # (T, 6, P)
+        after.append((d.r - X @ theta) * weights)
+    del fit
+    return before, after
+
+
+def _rms(a: np.ndarray) -> list[float]:
+    return [float(x) for x in np.sqrt((a ** 2).mean(axis=0))]
+
+
+def disagreement(result, search, names: list[str], theta: np.ndarray, delay: float, test_flights: Sequence[Flight],
+                 *, horizon: int, batch_size: int) -> dict[str, Any]:
+    """Tables (and the data of the report's figures) of where the models disagree."""
+    w = search.weights
+    train = search.data(delay)
+    test = [flight_data(f, search.vehicle, delay, window=search.window, order=search.order) for f in test_flights]
+    out: dict[str, Any] = {"channels": list(CHANNELS), "weights": [float(x) for x in w]}
+    for part, data in (("train", train), ("test", test)):
+        b, a = _residuals(data, names, theta, w)
+        out[f"rms_{part}"] = {"before": _rms(np.concatenate(b)), "after": _rms(np.concatenate(a))}
+    # regimes, on the training flights: RMS of each channel per quartile of each variable
+    b, a = _residuals(train, names, theta, w)
+    b, a = np.concatenate(b), np.concatenate(a)
+    var = {k: np.concatenate([v[EDGE:-EDGE] for v in (_regime_variables(f)[k] for f in search.flights)])
+           for k in REGIMES}
+    regimes = {}
+    for k, x in var.items():
+        edges = np.quantile(x, [0, 0.25, 0.5, 0.75, 1.0])
+        idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 3)
+        regimes[k] = {"edges": [float(e) for e in edges],
+                      "before": [_rms(b[idx == i]) for i in range(4)], "after": [_rms(a[idx == i]) for i in range(4)]}
+    out["regimes"] = regimes
+    # frequency bands: share of each channel's residual power per band, before and after
+    dt = float(np.median(np.diff(search.flights[0].t)))
+    bands = {}
+    for label, arr in (("before", b), ("after", a)):
+        freq, psd = welch(arr, fs=1 / dt, nperseg=256, axis=0)
+        df = freq[1] - freq[0]
+        bands[label] = [[float(psd[(freq >= lo) & (freq < hi), c].sum() * df) for c in range(6)] for lo, hi in BANDS]
+    out["bands"] = {"edges": [list(bd) for bd in BANDS], **bands}
+    out["samples"] = {"train": int(len(b)), "test": int(sum(len(d.r) for d in test))}
+    # which channel's disagreement costs the benchmark most: the nominal model's rollouts on the
+    # test flights, given each channel's measured residual as a known extra wrench
+    out["rollouts"] = _rollout_shares(result, search, test_flights, horizon, batch_size)
+    # data for the before/after figure: each found effect's strongest feature against the residual
+    out["scatter"] = _scatter(result, train, names, theta, w)
+    return out
+
+
+def _rollout_shares(result, search, flights, horizon, batch_size) -> dict[str, Any]:
+    nominal = result.nominal
+    rows = {}
+    for c, channel in enumerate(CHANNELS):
+        sums = {k: [] for k in ("p", "v", "R", "w")}
+        for f in flights:
+            r = np.zeros((len(f), 6))
+            meas = flight_data(f, search.vehicle, 0.0, window=search.window, order=search.order)
+            r[EDGE:-EDGE, c] = meas.r[:, c]
+            y0, u, y = benchmark.windows(f, horizon)
+            extra = np.lib.stride_tricks.sliding_window_view(r, horizon, axis=0)[:len(y0)].transpose(0, 2, 1)
+            pred = np.concatenate([nominal(y0[s:s + batch_size], u[s:s + batch_size], extra[s:s + batch_size])
+                                   for s in range(0, len(y0), batch_size)])
+            s = benchmark.score(y, pred)
+            for k in sums:
+                sums[k].append(s.simerr[k])
+        rows[channel] = {k: float(np.mean(v)) for k, v in sums.items()}
+    return {"nominal": result.before.simerr, "with_measured_channel": rows}
+
+
+def _scatter(result, train, names, theta, w, n_max: int = 4000) -> dict[str, Any]:
+    """For each found linear effect, its contribution's dominant channel against the residual
+    there, before and after the other effects are removed."""
+    out = {}
+    offs = {}
+    k = 0
+    for nm in names:
+        P = train[0].features[nm].shape[-1]
+        offs[nm] = slice(k, k + P)
+        k += P
+    R = np.concatenate([d.r for d in train])
+    X = np.concatenate([np.concatenate([d.features[n] for n in names], axis=-1) for d in train])
+    step = max(1, len(R) // n_max)
+    for f in result.found:
+        if f.name not in offs:
+            continue
+        contrib = X[:, :, offs[f.name]] @ theta[offs[f.name]]  # (N, 6)
+        ch = int(np.argmax((contrib * w).std(axis=0)))
+        others = X @ theta - contrib
+        out[f.name] = {"channel": CHANNELS[ch], "model": contrib[::step, ch].tolist(),
+                       "residual_before": (R - (X[:, :, offs["nominal"]] @ theta[offs["nominal"]]))[::step, ch].tolist(),
+                       "residual_after": (R - X @ theta)[::step, ch].tolist(),
+                       "residual_others_removed": (R - others)[::step, ch].tolist()}
+    return out

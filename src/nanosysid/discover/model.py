@@ -1,0 +1,114 @@
+"""The nominal model augmented with named effects: ``physics+<effects>``, a benchmark predictor."""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import json
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from nanosysid import dynamics, so3
+from nanosysid.discover.candidates import wrench_features
+from nanosysid.rollout import advance_inputs, as_tensor, rollout
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["AugmentedStep", "AugmentedPredictor", "save_model", "load_model"]
+
+
+class AugmentedStep(nn.Module):
+    """RK4 of the full rigid-body dynamics (torque equation kept) with an extra body wrench
+    ``Phi(x, Omega, dOmega/dt) theta`` from the named effects.
+
+    The step's input is ``(B, 8)`` (rotor speeds and their rate) or ``(B, 14)`` with a
+    further measured wrench ``[F_B; tau_B]`` added as it is (used to ask what a channel's
+    measured disagreement would do to the rollouts).
+    """
+
+    def __init__(self, vehicle: Vehicle, effects: Sequence[str] = (), theta: Sequence[float] = (), *,
+                 dt: float = 0.01, substeps: int = 1) -> None:
+        super().__init__()
+        self.vehicle, self.effects, self.dt, self.substeps = vehicle, tuple(effects), dt, substeps
+        self.register_buffer("theta", torch.tensor(list(theta), dtype=torch.float64))
+        self._f = functools.partial(dynamics.quad_dynamics, **vehicle.dynamics_kwargs(), angular_dynamics=True)
+
+    def _dx(self, x: Tensor, u_ext: Tensor) -> Tensor:
+        om, om_dot = u_ext[..., :4], u_ext[..., 4:8]
+        force = torque = None
+        if self.effects:
+            w = wrench_features(self.effects, x, om, om_dot, self.vehicle) @ self.theta.to(x.dtype)  # (B, 6)
+            force, torque = w[..., :3], w[..., 3:]
+        if u_ext.shape[-1] > 8:
+            force = u_ext[..., 8:11] if force is None else force + u_ext[..., 8:11]
+            torque = u_ext[..., 11:14] if torque is None else torque + u_ext[..., 11:14]
+        return self._f(x, om, force_body=force, torque_body=torque)
+
+    def forward(self, y: Tensor, u_ext: Tensor) -> Tensor:
+        h = self.dt / self.substeps
+        for _ in range(self.substeps):
+            y = dynamics.rk4_step(self._dx, y, u_ext, h)
+        return torch.cat((y[..., :6], so3.quat_normalize(y[..., 6:10]), y[..., 10:]), dim=-1)
+
+
+def rotor_rates(u: Tensor, dt: float) -> Tensor:
+    """``dOmega/dt`` along the horizon of ``u (B, H, 4)``: central differences, one-sided at the ends."""
+    if u.shape[1] < 2:
+        return torch.zeros_like(u)
+    d = torch.empty_like(u)
+    d[:, 1:-1] = (u[:, 2:] - u[:, :-2]) / (2 * dt)
+    d[:, 0] = (u[:, 1] - u[:, 0]) / dt
+    d[:, -1] = (u[:, -1] - u[:, -2]) / dt
+    return d
+
+
+class AugmentedPredictor:
+    """``predict(y0 (B, 13), u (B, H, 4)) -> (B, H, 13)`` of an :class:`AugmentedStep`, with the
+    recorded rotor speeds advanced by ``delay`` (s) when a telemetry delay was found."""
+
+    def __init__(self, step: AugmentedStep, *, delay: float = 0.0, name: str = "discovered") -> None:
+        self.step, self.delay, self.name = step, float(delay), name
+
+    @torch.no_grad()
+    def __call__(self, y0, u, extra=None) -> np.ndarray:
+        y = as_tensor(y0, torch.float64)
+        om = advance_inputs(as_tensor(u, torch.float64), self.delay / self.step.dt)
+        parts = [om, rotor_rates(om, self.step.dt)]
+        if extra is not None:
+            parts.append(as_tensor(extra, torch.float64))
+        return rollout(self.step, y, torch.cat(parts, dim=-1)).numpy()
+
+    def __repr__(self) -> str:
+        return f"AugmentedPredictor({'+'.join(('physics',) + self.step.effects)}, delay={self.delay:g})"
+
+
+def save_model(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[str, Any]], delay: float,
+               dt: float = 0.01, substeps: int = 1) -> dict[str, Any]:
+    """The augmented model as JSON: vehicle (with the refitted k_F, k_M), effects and their
+    coefficients, delay."""
+    from nanosysid.dataio import atomic_file
+
+    payload = {"format": "nanosysid-discovered-1", "vehicle": dataclasses.asdict(vehicle),
+               "effects": {k: dict(v) for k, v in effects.items()}, "delay": float(delay), "dt": dt,
+               "substeps": substeps}
+    with atomic_file(Path(path)) as tmp:
+        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+    return payload
+
+
+def load_model(path: str | Path, *, name: str = "discovered") -> AugmentedPredictor:
+    """The predictor of a model written by :func:`save_model`."""
+    from nanosysid.dataio import DataError
+
+    d = json.loads(Path(path).read_text())
+    if d.get("format") != "nanosysid-discovered-1":
+        raise DataError(f"{path}: not a discovered model (field 'format' is {d.get('format')!r})")
+    v = d["vehicle"]
+    vehicle = Vehicle.from_mapping(v)
+    names = list(d["effects"])
+    theta = [c for n in names for c in d["effects"][n]["coefficients"]]
+    step = AugmentedStep(vehicle, names, theta, dt=float(d["dt"]), substeps=int(d["substeps"]))
+    return AugmentedPredictor(step, delay=float(d["delay"]), name=name)
