@@ -32,6 +32,12 @@ def test_every_model_config_composes_and_builds(name, tmp_path):
         hp = hparams_from_config(m)
         m["checkpoint"] = str(tmp_path / "model.pt")
         save_checkpoint(build_model(hp), hp, tmp_path / "model.pt")
+    if m["kind"] == "discovered":
+        from nanosysid.discover.model import save_model
+        from nanosysid.vehicle import Vehicle
+
+        m["model"] = str(tmp_path / "model.json")
+        save_model(tmp_path / "model.json", Vehicle(), {"rotor_drag": {"coefficients": [1e-6, 1e-6]}}, 0.01)
     assert callable(build_from_config(m))
 
 
@@ -39,6 +45,13 @@ def test_every_model_config_composes_and_builds(name, tmp_path):
 def test_every_data_config_composes(name):
     cfg = yaml.safe_load(config.compose_text([f"data={name}"], conf_dir=ROOT / "conf"))
     assert cfg["data"]["flights_dir"] and cfg["data"]["source"] == name
+
+
+def test_real_data_without_the_oracle_leaves_discovery_without_one():
+    cfg = yaml.safe_load(config.compose_text(["data=csv", "~model@models.oracle"], conf_dir=ROOT / "conf"))
+    assert "oracle" not in cfg["models"] and cfg["discover"]["oracle"] is None
+    cfg = yaml.safe_load(config.compose_text([], conf_dir=ROOT / "conf"))
+    assert cfg["discover"]["oracle"] == cfg["models"]["oracle"]
 
 
 def test_each_model_has_its_own_key_and_the_vehicle_is_resolved():

@@ -168,3 +168,25 @@ def test_missing_toolchain_is_one_clear_message(monkeypatch):
     monkeypatch.setattr(shutil, "which", lambda t: None if t == "qemu-system-arm" else real(t))
     with pytest.raises(ToolchainError, match="(?s)missing qemu-system-arm.*apt-get install -y --no-install-recommends"):
         mcu.require_toolchain()
+
+
+def test_discovered_model_exports_to_c_and_onnx(tmp_path):
+    from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
+
+    effects = {"rotor_drag": [1.8e-6, 1.0e-6], "body_drag": [1.5e-3, 3.0e-3], "com_offset": [1.5e-3, -1.0e-3],
+               "motor_asymmetry": [0.03, -0.02, 0.025, -0.035], "rotor_inertia": [3.9e-8]}
+    step = AugmentedStep(Vehicle(), list(effects), [c for v in effects.values() for c in v])
+    ex = exportable(AugmentedPredictor(step, delay=0.03), "discovered")
+    assert ex.nu == 8 and "#define NSI_NU 8" in ex.c.header and "fabsf(" in ex.c.source
+    _, _, f = flight_inputs(ex)
+    u_all = ex.inputs_in(f)
+    assert u_all.shape == (len(f), 8)
+    assert np.allclose(u_all[10, :4], f.u[13], rtol=1e-6)  # read 30 ms (3 samples) later
+    y_in, u_in = ex.outputs_in(f.y[100:112]), u_all[100:112]
+    got = run_on_host(tmp_path, ex.c, y_in, u_in)
+    ref = ex.teacher_forced(y_in, u_in)
+    assert np.abs(got - ref).max() / np.abs(ref).max() < 1e-6
+    inputs = check_inputs(ex, [f], 32, seed=0)
+    out = onnx_outputs(export_onnx(ex, tmp_path)[0], inputs)[0]
+    with torch.no_grad():
+        assert np.abs(out - ex.step(torch.from_numpy(inputs["y"]), torch.from_numpy(inputs["u"])).numpy()).max() < 1e-5

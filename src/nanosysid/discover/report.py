@@ -66,7 +66,7 @@ def _channel_figure(a: dict[str, Any], path: Path) -> None:
         ax.set_xticks(x, CHANNELS)
         ax.set_title(f"{'training' if part == 'train' else 'test'} flights")
         ax.grid(True, axis="y", alpha=0.3)
-    axes[0].set_ylabel("RMS of measured − predicted\n[units of each channel's nominal spread]")
+    axes[0].set_ylabel("RMS of measured − predicted\n[std. dev. of the channel's nominal residual]")
     axes[0].legend(fontsize=8)
     fig.tight_layout()
     _save(fig, path)
@@ -132,7 +132,8 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
         L += ["## Where the nominal model and the measurements disagree", "",
               "Measured body wrench: force `m a_IMU` from the accelerometer, torque `J dω/dt + ω × Jω` from "
               "the gyro (Savitzky-Golay derivative). Nominal: `[0, 0, k_F ΣΩ²]` and the mixer torques. Each "
-              "channel is in units of the spread of its nominal residual on the training flights "
+              "channel is in units of the standard deviation of its nominal residual on the training flights "
+              "(an RMS well above 1 means a constant part: a torque the rotor model never predicts) "
               f"({a['samples']['train']} training and {a['samples']['test']} test samples).", "",
               "| channel | " + " | ".join(CHANNELS) + " |", "|---|" + "---|" * 6]
         for part in ("train", "test"):

@@ -12,7 +12,7 @@ import re
 from collections import Counter
 from typing import Sequence, Union
 
-__all__ = ["Tracer", "Sym", "flit", "sqrt", "physics_step_c", "physics_step_scalar", "Num"]
+__all__ = ["Tracer", "Sym", "flit", "sqrt", "fabs", "physics_step_c", "physics_step_scalar", "Num"]
 
 
 def flit(x: float) -> str:
@@ -91,19 +91,68 @@ def sqrt(x: Num) -> Num:
     return float(x) ** 0.5
 
 
+def fabs(x: Num) -> Num:
+    if isinstance(x, Sym):
+        return x.t.emit(f"fabsf({x.ref})", "abs")
+    return abs(float(x))
+
+
 def _cross(a: Sequence[Num], b: Sequence[Num]) -> list[Num]:
     return [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
 
 
-def _dynamics(x: Sequence[Num], s: Sequence[Num], *, mass, inertia, k_f, k_m, arm, gravity, angular_dynamics):
+def _rotate(qv: Sequence[Num], qw: Num, v: Sequence[Num]) -> list[Num]:
+    """:func:`nanosysid.so3.quat_rotate`: ``v + w t + q_v x t`` with ``t = 2 q_v x v``."""
+    t = [2.0 * c for c in _cross(qv, v)]
+    ct = _cross(qv, t)
+    return [v[i] + qw * t[i] + ct[i] for i in range(3)]
+
+
+SPIN = (1.0, -1.0, 1.0, -1.0)
+
+
+def _effect_wrench(name: str, theta: Sequence[float], x, u, u_dot, s, *, k_f, k_m, arm, **_) -> tuple[list, list]:
+    """Body force and torque of one named effect (:mod:`nanosysid.discover.candidates`, the
+    same formulas in scalar form) with coefficients ``theta``."""
+    v, qv, qw, w = x[3:6], x[6:9], x[9], x[10:13]
+    zero = [0.0, 0.0, 0.0]
+    if name in ("rotor_drag", "body_drag"):
+        vb = _rotate([-c for c in qv], qw, v)
+        if name == "rotor_drag":
+            total = u[0] + u[1] + u[2] + u[3]
+            gain = [theta[0] * total, theta[0] * total, theta[1] * total]
+        else:
+            gain = [theta[0] * fabs(vb[0]), theta[0] * fabs(vb[1]), theta[1] * fabs(vb[2])]
+        return [-(gain[i] * vb[i]) for i in range(3)], zero
+    if name == "com_offset":
+        thrust = k_f * (s[0] + s[1] + s[2] + s[3])
+        return zero, [-(thrust * theta[1]), thrust * theta[0], 0.0]
+    if name == "motor_asymmetry":
+        kl = k_f * arm
+        ds = [theta[i] * s[i] for i in range(4)]
+        return [0.0, 0.0, k_f * (ds[0] + ds[1] + ds[2] + ds[3])], [
+            kl * (-ds[0] - ds[1] + ds[2] + ds[3]), kl * (-ds[0] + ds[1] + ds[2] - ds[3]),
+            k_m * (-ds[0] + ds[1] - ds[2] + ds[3])]
+    if name == "rotor_inertia":
+        h = theta[0] * (u[0] - u[1] + u[2] - u[3])
+        return zero, [-(w[1] * h), w[0] * h, -(theta[0] * (u_dot[0] - u_dot[1] + u_dot[2] - u_dot[3]))]
+    raise ValueError(f"no scalar form of effect {name!r}")
+
+
+def _dynamics(x: Sequence[Num], s: Sequence[Num], u=(), u_dot=(), *, mass, inertia, k_f, k_m, arm, gravity,
+              angular_dynamics, effects=()):
     """``dx/dt`` of :func:`nanosysid.dynamics.quad_dynamics` in scalar form; ``s`` are the
-    squared rotor speeds."""
+    squared rotor speeds; ``effects`` adds the named effects' wrench (``(name, theta)`` pairs)."""
     v, qv, qw, w = x[3:6], x[6:9], x[9], x[10:13]
     thrust = k_f * (s[0] + s[1] + s[2] + s[3])
     f_b = [0.0, 0.0, thrust]
-    t = [2.0 * c for c in _cross(qv, f_b)]
-    ct = _cross(qv, t)
-    v_dot = [(f_b[i] + qw * t[i] + ct[i]) * (1.0 / mass) + g for i, g in enumerate((0.0, 0.0, -gravity))]
+    tau_extra = [0.0, 0.0, 0.0]
+    for name, theta in effects:
+        f, t = _effect_wrench(name, theta, x, u, u_dot, s, k_f=k_f, k_m=k_m, arm=arm)
+        f_b = [a + b for a, b in zip(f_b, f)]
+        tau_extra = [a + b for a, b in zip(tau_extra, t)]
+    rot = _rotate(qv, qw, f_b)
+    v_dot = [rot[i] * (1.0 / mass) + g for i, g in enumerate((0.0, 0.0, -gravity))]
     cw = _cross(qv, w)
     q_dot = [0.5 * (qw * w[i] + cw[i]) for i in range(3)]
     q_dot.append(-0.5 * (qv[0] * w[0] + qv[1] * w[1] + qv[2] * w[2]))
@@ -111,6 +160,7 @@ def _dynamics(x: Sequence[Num], s: Sequence[Num], *, mass, inertia, k_f, k_m, ar
         kl = k_f * arm
         tau = [kl * (-s[0] - s[1] + s[2] + s[3]), kl * (-s[0] + s[1] + s[2] - s[3]),
                k_m * (-s[0] + s[1] - s[2] + s[3])]
+        tau = [a + b for a, b in zip(tau, tau_extra)]
         Jw = [inertia[i] * w[i] for i in range(3)]
         c = _cross(w, Jw)
         w_dot = [(tau[i] - c[i]) * (1.0 / inertia[i]) for i in range(3)]
@@ -121,15 +171,17 @@ def _dynamics(x: Sequence[Num], s: Sequence[Num], *, mass, inertia, k_f, k_m, ar
 
 def physics_step_scalar(y: Sequence[Num], u: Sequence[Num], *, dt: float, substeps: int, **params) -> list[Num]:
     """:class:`nanosysid.models.physics.PhysicsStep` in scalar form: RK4 substeps with the
-    input held, then the quaternion renormalised."""
-    s = [ui * ui for ui in u]
+    input held, then the quaternion renormalised. With ``effects``, ``u`` holds the rotor
+    speeds and their rates (8 values), as :class:`nanosysid.discover.model.AugmentedStep`."""
+    om, om_dot = list(u[:4]), list(u[4:8])
+    s = [ui * ui for ui in om]
     h = dt / substeps
     x = list(y)
     for _ in range(substeps):
-        k1 = _dynamics(x, s, **params)
-        k2 = _dynamics([a + (0.5 * h) * k for a, k in zip(x, k1)], s, **params)
-        k3 = _dynamics([a + (0.5 * h) * k for a, k in zip(x, k2)], s, **params)
-        k4 = _dynamics([a + h * k for a, k in zip(x, k3)], s, **params)
+        k1 = _dynamics(x, s, om, om_dot, **params)
+        k2 = _dynamics([a + (0.5 * h) * k for a, k in zip(x, k1)], s, om, om_dot, **params)
+        k3 = _dynamics([a + (0.5 * h) * k for a, k in zip(x, k2)], s, om, om_dot, **params)
+        k4 = _dynamics([a + h * k for a, k in zip(x, k3)], s, om, om_dot, **params)
         x = [a + (h / 6.0) * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4)]
     q = x[6:10]
     inv = 1.0 / sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
@@ -137,17 +189,19 @@ def physics_step_scalar(y: Sequence[Num], u: Sequence[Num], *, dt: float, subste
 
 
 def physics_step_c(name: str, *, dt: float, substeps: int, **params) -> tuple[str, Counter]:
-    """C source of ``void <name>(const float y[13], const float u[4], float y_next[13])`` and
-    the count of each operation it performs."""
+    """C source of ``void <name>(const float y[13], const float u[NU], float y_next[13])`` and
+    the count of each operation it performs (``NU`` is 8 with effects: rotor speeds and rates)."""
     tr = Tracer()
+    nu = 8 if params.get("effects") else 4
     y = [tr.input(f"y[{i}]") for i in range(13)]
-    u = [tr.input(f"u[{i}]") for i in range(4)]
+    u = [tr.input(f"u[{i}]") for i in range(nu)]
     out = physics_step_scalar(y, u, dt=dt, substeps=substeps, **params)
     lines, counts = tr.live(out)
     body = [f"    {line}" for line in lines]
     body += [f"    y_next[{i}] = {Sym._r(o)};" for i, o in enumerate(out)]
-    src = (f"/* RK4 of the rigid-body dynamics, {substeps} substep(s) of {dt / substeps:g} s, "
+    effects = "".join(f" + {n}" for n, _ in params.get("effects", ()))
+    src = (f"/* RK4 of the rigid-body dynamics{effects}, {substeps} substep(s) of {dt / substeps:g} s, "
            f"{'with' if params['angular_dynamics'] else 'without'} the torque equation: "
            f"{sum(counts.values())} floating-point operations. */\n"
-           f"void {name}(const float y[13], const float u[4], float y_next[13])\n{{\n" + "\n".join(body) + "\n}\n")
+           f"void {name}(const float y[13], const float u[{nu}], float y_next[13])\n{{\n" + "\n".join(body) + "\n}\n")
     return src, counts

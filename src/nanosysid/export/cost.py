@@ -63,4 +63,11 @@ def step_cost(predict: Any) -> dict[str, Any]:
         return _learned_cost(predict.model)
     if isinstance(predict, StepPredictor) and isinstance(predict.step, PhysicsStep):
         return {"params": None, "flops": physics_flops(predict.step), "flops_method": "exact count of the generated C"}
+    from nanosysid.discover.model import AugmentedPredictor
+
+    if isinstance(predict, AugmentedPredictor):
+        from nanosysid.export.steps import exportable
+
+        return {"params": None, "flops": exportable(predict, "discovered").c.flops,
+                "flops_method": "exact count of the generated C"}
     return {"params": None, "flops": None, "flops_method": None}

@@ -103,7 +103,7 @@ def mcu_model(cfg: DictConfig, name: str) -> dict[str, Any]:
     if start + k > len(flight):
         raise ConfigError(f"export.mcu.start={start}, steps={k}: beyond the {len(flight)} samples of {flight.name}")
     y_in = ex.outputs_in(flight.y[start:start + k])
-    u_in = flight.u[start:start + k].astype(np.float32)
+    u_in = ex.inputs_in(flight)[start:start + k]
     ref = ex.teacher_forced(y_in, u_in)
 
     out = mcu_dir(cfg, name)

@@ -59,17 +59,34 @@ class Exportable:
     init: nn.Module | None
     c: CModel
     params: int | None
+    delay: float = 0.0  # s, the augmented model's rotor-speed delay (its inputs are read this much later)
 
     @property
     def ny(self) -> int:
         return self.c.ny
+
+    @property
+    def nu(self) -> int:
+        return 8 if self.kind == "augmented" else 4
+
+    def inputs_in(self, flight) -> np.ndarray:
+        """The step's input along a flight, ``(T, nu)`` float32: rotor speeds, and for the
+        augmented model the speeds read ``delay`` later and their rates."""
+        if self.kind != "augmented":
+            return flight.u.astype(np.float32)
+        from nanosysid.discover.model import rotor_rates
+        from nanosysid.rollout import advance_inputs
+
+        dt = float(self.step.dt)
+        u = advance_inputs(torch.from_numpy(flight.u)[None], self.delay / dt)
+        return torch.cat((u, rotor_rates(u, dt)), dim=-1)[0].float().numpy()
 
     def outputs_in(self, y: np.ndarray) -> np.ndarray:
         """Flight outputs ``(N, 13)`` in the step's representation ``(N, ny)``, float32."""
         from nanosysid.models.learned import to_tilde
 
         t = torch.from_numpy(np.ascontiguousarray(y, dtype=np.float64))
-        if self.kind != "physics":
+        if self.kind not in ("physics", "augmented"):
             t = to_tilde(t)
         return t.float().numpy()
 
@@ -89,7 +106,9 @@ class Exportable:
 
 
 def exportable(predict: Any, name: str) -> Exportable:
-    """The exportable step of a benchmark predictor (physics or learned)."""
+    """The exportable step of a benchmark predictor (physics, learned or discovered)."""
+    from nanosysid.discover import CANDIDATES
+    from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
     from nanosysid.models.learned import LearnedPredictor
     from nanosysid.models.physics import PhysicsStep
     from nanosysid.rollout import StepPredictor
@@ -99,6 +118,15 @@ def exportable(predict: Any, name: str) -> Exportable:
         step = PhysicsStep(p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.angular_dynamics)
         c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.angular_dynamics)
         return Exportable(name, "physics", step.float().eval(), None, c, None)
+    if isinstance(predict, AugmentedPredictor):
+        p = predict.step
+        theta, effects, k = p.theta.tolist(), [], 0
+        for n in p.effects:
+            effects.append((n, theta[k:k + len(CANDIDATES[n].params)]))
+            k += len(CANDIDATES[n].params)
+        step = AugmentedStep(p.vehicle, p.effects, theta, dt=p.dt, substeps=p.substeps)
+        c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=True, effects=effects)
+        return Exportable(name, "augmented", step.float().eval(), None, c, None, delay=predict.delay)
     if isinstance(predict, LearnedPredictor):
         import copy
 
@@ -117,7 +145,7 @@ def check_inputs(ex: Exportable, flights, n: int, seed: int) -> dict[str, np.nda
     random samples; for the LSTM also its state, after 0..49 steps from a random start."""
     rng = np.random.default_rng(seed)
     y = np.concatenate([f.y for f in flights])
-    u = np.concatenate([f.u for f in flights]).astype(np.float32)
+    u = np.concatenate([ex.inputs_in(f) for f in flights])
     if ex.kind != "lstm":
         idx = rng.integers(0, len(y), n)
         return {"y": ex.outputs_in(y[idx]), "u": u[idx]}
@@ -164,7 +192,7 @@ def export_onnx(ex: Exportable, out: Path) -> list[Path]:
         files.append(out / "init.onnx")
         one(ex.init, (z(1, ny),), ["y"], ["h", "c"], files[1])
     else:
-        one(ex.step, (z(1, ny), z(1, 4)), ["y", "u"], ["y_next"], files[0])
+        one(ex.step, (z(1, ny), z(1, ex.nu)), ["y", "u"], ["y_next"], files[0])
     return files
 
 
