@@ -12,7 +12,7 @@ from scipy.signal import welch
 from nanosysid import benchmark, so3
 from nanosysid.dataio import Flight
 from nanosysid.discover.candidates import CHANNELS
-from nanosysid.discover.fit import EDGE, Fitter, flight_data
+from nanosysid.discover.fit import EDGE, flight_data
 
 __all__ = ["disagreement", "REGIMES", "BANDS"]
 
@@ -35,13 +35,11 @@ REGIMES = ("speed [m/s]", "tilt [deg]", "throttle [ΣΩ² / mean]", "rotor-speed
 
 def _residuals(data, names, theta, weights):
     """Weighted residual before (nominal) and after the fitted effects, per flight, (T, 6) each."""
-    fit = Fitter(data, weights)
     before = [d.r * weights for d in data]
     after = []
     for d in data:
         X = np.concatenate([d.features[n] for n in names], axis=-1)  # (T, 6, P)
         after.append((d.r - X @ theta) * weights)
-    del fit
     return before, after
 
 
@@ -56,12 +54,11 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
     train = search.data(delay)
     test = [flight_data(f, search.vehicle, delay, window=search.window, order=search.order) for f in test_flights]
     out: dict[str, Any] = {"channels": list(CHANNELS), "weights": [float(x) for x in w]}
-    for part, data in (("train", train), ("test", test)):
-        b, a = _residuals(data, names, theta, w)
-        out[f"rms_{part}"] = {"before": _rms(np.concatenate(b)), "after": _rms(np.concatenate(a))}
-    # regimes, on the training flights: RMS of each channel per quartile of each variable
-    b, a = _residuals(train, names, theta, w)
-    b, a = np.concatenate(b), np.concatenate(a)
+    for part, data in (("test", test), ("train", train)):
+        b, a = (np.concatenate(r) for r in _residuals(data, names, theta, w))
+        out[f"rms_{part}"] = {"before": _rms(b), "after": _rms(a)}
+    # regimes, on the training flights (b, a as the loop left them): RMS of each channel per
+    # quartile of each variable
     var = {k: np.concatenate([v[EDGE:-EDGE] for v in (_regime_variables(f)[k] for f in search.flights)])
            for k in REGIMES}
     regimes = {}
@@ -90,13 +87,14 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
 
 def _rollout_shares(result, search, flights, horizon, batch_size) -> dict[str, Any]:
     nominal = result.nominal
+    # the nominal model reads the rotor speeds as recorded: its residual is the undelayed one
+    residual = [flight_data(f, search.vehicle, 0.0, window=search.window, order=search.order).r for f in flights]
     rows = {}
     for c, channel in enumerate(CHANNELS):
         sums = {k: [] for k in ("p", "v", "R", "w")}
-        for f in flights:
+        for f, res in zip(flights, residual):
             r = np.zeros((len(f), 6))
-            meas = flight_data(f, search.vehicle, 0.0, window=search.window, order=search.order)
-            r[EDGE:-EDGE, c] = meas.r[:, c]
+            r[EDGE:-EDGE, c] = res[:, c]
             y0, u, y = benchmark.windows(f, horizon)
             extra = np.lib.stride_tricks.sliding_window_view(r, horizon, axis=0)[:len(y0)].transpose(0, 2, 1)
             pred = np.concatenate([nominal(y0[s:s + batch_size], u[s:s + batch_size], extra[s:s + batch_size])
@@ -109,8 +107,8 @@ def _rollout_shares(result, search, flights, horizon, batch_size) -> dict[str, A
 
 
 def _scatter(result, train, names, theta, w, n_max: int = 4000) -> dict[str, Any]:
-    """For each found linear effect, its contribution's dominant channel against the residual
-    there, before and after the other effects are removed."""
+    """For each found linear effect, in the channel it acts on most: its fitted contribution,
+    the residual with every other fitted term removed, and what is left after all of them."""
     out = {}
     offs = {}
     k = 0
@@ -128,7 +126,6 @@ def _scatter(result, train, names, theta, w, n_max: int = 4000) -> dict[str, Any
         ch = int(np.argmax((contrib * w).std(axis=0)))
         others = X @ theta - contrib
         out[f.name] = {"channel": CHANNELS[ch], "model": contrib[::step, ch].tolist(),
-                       "residual_before": (R - (X[:, :, offs["nominal"]] @ theta[offs["nominal"]]))[::step, ch].tolist(),
                        "residual_after": (R - X @ theta)[::step, ch].tolist(),
                        "residual_others_removed": (R - others)[::step, ch].tolist()}
     return out

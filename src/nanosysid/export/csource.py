@@ -182,11 +182,25 @@ def _linear_layers(mlp: torch.nn.Sequential) -> list[torch.nn.Linear]:
     return [m for m in mlp if isinstance(m, torch.nn.Linear)]
 
 
-def _normalise(sd: dict[str, np.ndarray]) -> str:
+def _normalise() -> str:
     """The input features of a step: normalised ``y`` (12) and ``u`` (4) in ``x[16]``."""
     return ("    float x[16];\n"
             "    for (int i = 0; i < 12; ++i)\n        x[i] = (y[i] - y_mean[i]) * y_scale[i];\n"
             "    for (int i = 0; i < 4; ++i)\n        x[12 + i] = (u[i] - u_mean[i]) * u_scale[i];\n")
+
+
+def _mlp(layers: list[torch.nn.Linear], prefix: str, n_in: int, x: str) -> tuple[list[str], list[str], str]:
+    """Weight arrays and C calls of an MLP with tanh between layers, input ``x`` of ``n_in``
+    values; returns them and the name of the output buffer."""
+    arrays, calls, buf = [], [], x
+    for i, lin in enumerate(layers):
+        W, b, out = f"W{prefix}{i}", f"b{prefix}{i}", f"a{prefix}{i}"
+        arrays += [_array(W, lin.weight.detach().numpy()), _array(b, lin.bias.detach().numpy())]
+        calls.append(f"    float {out}[{lin.out_features}];\n    nsi_dense({lin.out_features}, {n_in}, {W}, {b}, {buf}, {out});\n")
+        if i < len(layers) - 1:
+            calls.append(f"    nsi_tanh({lin.out_features}, {out});\n")
+        n_in, buf = lin.out_features, out
+    return arrays, calls, buf
 
 
 def _dense_flops(layers: list[torch.nn.Linear]) -> int:
@@ -203,22 +217,11 @@ def learned_source(name: str, model) -> CModel:
     flops = 16 * 2 + 12 * 2  # normalisation, and y + d_std * d
     if model.arch == "lstm":
         nh = model.cell.hidden_size
-        init = _linear_layers(model.init)
-        for i, lin in enumerate(init):
-            arrays += [_array(f"Wi{i}", lin.weight.detach().numpy()), _array(f"bi{i}", lin.bias.detach().numpy())]
+        init_arrays, init_calls, buf = _mlp(_linear_layers(model.init), "i", 12, "x")
         # one product for both gate inputs: [W_ih | W_hh] [x; h] + (b_ih + b_hh), gates i, f, g, o
         W = np.concatenate([sd["cell.weight_ih"], sd["cell.weight_hh"]], axis=1)
-        arrays += [_array("Wg", W), _array("bg", sd["cell.bias_ih"] + sd["cell.bias_hh"]),
-                   _array("Wr", sd["readout.weight"]), _array("br", sd["readout.bias"])]
-        init_calls = []
-        n_prev, buf = 12, "x"
-        for i, lin in enumerate(init):
-            out = f"a{i}"
-            init_calls.append(f"    float {out}[{lin.out_features}];\n"
-                              f"    nsi_dense({lin.out_features}, {n_prev}, Wi{i}, bi{i}, {buf}, {out});\n")
-            if i < len(init) - 1:
-                init_calls.append(f"    nsi_tanh({lin.out_features}, {out});\n")
-            n_prev, buf = lin.out_features, out
+        arrays += init_arrays + [_array("Wg", W), _array("bg", sd["cell.bias_ih"] + sd["cell.bias_hh"]),
+                                 _array("Wr", sd["readout.weight"]), _array("br", sd["readout.bias"])]
         parts += arrays + [
             "static float nsi_sigmoid(float v)\n{\n    return 1.0f / (1.0f + nsi_exp(-v));\n}\n",
             "void nsi_init(const float y[NSI_NY], float state[NSI_NSTATE])\n{\n    float x[12];\n"
@@ -244,15 +247,8 @@ def learned_source(name: str, model) -> CModel:
         return CModel(name, _header(name, 12, 2 * nh), "\n".join(parts), ny=12, nstate=2 * nh, flops=flops)
 
     layers = _linear_layers(model.net)
-    for i, lin in enumerate(layers):
-        arrays += [_array(f"W{i}", lin.weight.detach().numpy()), _array(f"b{i}", lin.bias.detach().numpy())]
-    calls, n_prev, buf = [], 16, "x"
-    for i, lin in enumerate(layers):
-        out = f"a{i}"
-        calls.append(f"    float {out}[{lin.out_features}];\n    nsi_dense({lin.out_features}, {n_prev}, W{i}, b{i}, {buf}, {out});\n")
-        if i < len(layers) - 1:
-            calls.append(f"    nsi_tanh({lin.out_features}, {out});\n")
-        n_prev, buf = lin.out_features, out
+    net_arrays, calls, buf = _mlp(layers, "", 16, "x")
+    arrays += net_arrays
     flops += _dense_flops(layers) + sum(lin.out_features for lin in layers[:-1])  # one per tanh
     base = "y"
     notes: dict[str, Any] = {}
@@ -275,7 +271,7 @@ def learned_source(name: str, model) -> CModel:
     parts += arrays + [
         "void nsi_init(const float y[NSI_NY], float state[NSI_NSTATE])\n{\n    (void)y;\n    (void)state;\n}\n",
         "void nsi_step(const float y[NSI_NY], const float u[NSI_NU], float state[NSI_NSTATE], float y_next[NSI_NY])\n{\n"
-        "    (void)state;\n" + _normalise(sd) + "".join(calls)
+        "    (void)state;\n" + _normalise() + "".join(calls)
         + f"    for (int i = 0; i < 12; ++i)\n        y_next[i] = {base}[i] + d_std[i] * {buf}[i];\n}}\n",
     ]
     return CModel(name, _header(name, 12, 0), "\n".join(parts), ny=12, nstate=0, flops=flops, notes=notes)
