@@ -66,6 +66,8 @@ def test_ahead_places_each_prediction_h_samples_after_its_start():
     # a subset of starts is the same rollout as the full set
     sub = benchmark.predictions(benchmark.model("physics"), flight, horizon=H, starts=np.array([5, 30]))
     assert np.allclose(sub, pred[[5, 30]])
+    b = ahead(sub, H, len(flight), starts=np.array([5, 30]))
+    assert np.allclose(b[[H + 5, H + 30]], a[[H + 5, H + 30]]) and np.isnan(b).all(axis=1).sum() == len(flight) - 2
 
 
 def test_euler_angles_of_known_rotations():

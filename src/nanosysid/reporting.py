@@ -6,6 +6,7 @@ import logging
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from omegaconf import DictConfig, OmegaConf
 
 from nanosysid import benchmark, report
@@ -62,9 +63,15 @@ def write_report(cfg: DictConfig) -> None:
     fig_dir = Path(rc.figures)
     figures.mae_horizon_figure(rows, fig_dir / "mae_horizon.png")
     shown = [n for n in rc.lineplot.models if n in cfg.models]
-    ahead_rows = {name: ahead(benchmark.predictions(p, flight, horizon=H), H, len(flight))
-                  for name, p in model_predictors(cfg, shown).items()}
     a, b = rc.lineplot.window
+    # only the rollouts that end inside the window (and the smoothing's margin) are drawn
+    t = flight.t - flight.t[0]
+    inside = np.flatnonzero((t >= a) & (t <= b))
+    lo, hi = (inside[0], inside[-1]) if len(inside) else (0, len(flight) - 1)
+    margin = int(rc.lineplot.smooth)
+    starts = np.arange(max(lo - margin - H, 0), min(hi + margin - H + 1, len(flight) - H))
+    ahead_rows = {name: ahead(benchmark.predictions(p, flight, horizon=H, starts=starts), H, len(flight), starts)
+                  for name, p in model_predictors(cfg, shown).items()}
     figures.predictions_figure(flight, ahead_rows, fig_dir / "predictions.png", horizon=H,
                                window=(a, b), smooth=int(rc.lineplot.smooth))
     figures.trajectory_stats_figure(trajectory_stats(bench.train + bench.test), PAPER_STATS, STAT_LABELS,

@@ -28,15 +28,16 @@ def model_color(name: str, index: int = 0) -> str:
     return _COLORS.get(name, _CYCLE[index % len(_CYCLE)])
 
 
-def ahead(rollouts: np.ndarray, h: int, n_samples: int) -> np.ndarray:
+def ahead(rollouts: np.ndarray, h: int, n_samples: int, starts: np.ndarray | None = None) -> np.ndarray:
     """The ``h``-step-ahead prediction along a flight, ``(T, 13)``.
 
-    ``rollouts (N, H, 13)`` are the predictions from every start ``0..N-1`` (see
-    :func:`nanosysid.benchmark.predictions`); row ``t`` of the result is ``ŷ_{t|t-h}``, and
-    NaN where no window predicts sample ``t`` from ``h`` steps before.
+    ``rollouts (N, H, 13)`` are the predictions from the samples ``starts`` (every start
+    ``0..N-1`` by default; see :func:`nanosysid.benchmark.predictions`); row ``t`` of the
+    result is ``ŷ_{t|t-h}``, and NaN where no rollout predicts sample ``t`` from ``h`` steps before.
     """
+    starts = np.arange(len(rollouts)) if starts is None else np.asarray(starts)
     out = np.full((n_samples, rollouts.shape[-1]), np.nan)
-    out[h:h + len(rollouts)] = rollouts[:, h - 1]
+    out[starts + h] = rollouts[:, h - 1]
     return out
 
 
