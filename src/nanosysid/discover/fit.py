@@ -22,18 +22,12 @@ from scipy.signal import savgol_filter
 from nanosysid.dataio import Flight
 from nanosysid.discover.candidates import CANDIDATES, NOMINAL
 from nanosysid.identify import body_torque
+from nanosysid.rollout import advance_inputs
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "Fitter", "advance"]
+__all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "Fitter"]
 
 EDGE = 10  # samples dropped at each end of a flight: the smoothing filter's edge effects
-
-
-def advance(t: np.ndarray, u: np.ndarray, delay: float) -> np.ndarray:
-    """Rotor speeds read ``delay`` seconds later (linear interpolation, the last one held)."""
-    if delay == 0:
-        return u
-    return np.column_stack([np.interp(t + delay, t, u[:, i]) for i in range(u.shape[1])])
 
 
 def measured_wrench(flight: Flight, vehicle: Vehicle, window: int, order: int) -> np.ndarray:
@@ -72,7 +66,7 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
                 measured: np.ndarray | None = None) -> FlightData:
     """The residual and the candidates' features of a flight, rotor speeds advanced by ``delay``."""
     dt = float(np.median(np.diff(flight.t)))
-    u = advance(flight.t, flight.u, delay)
+    u = advance_inputs(torch.from_numpy(flight.u)[None], delay / dt)[0].numpy()  # read delay later
     om_dot = savgol_filter(u, window, order, deriv=1, delta=dt, axis=0)
     meas = measured_wrench(flight, vehicle, window, order) if measured is None else measured
     r = meas - _smooth(nominal_wrench(u, vehicle), window, order)

@@ -17,7 +17,7 @@ from nanosysid.discover.candidates import wrench_features
 from nanosysid.rollout import advance_inputs, as_tensor, rollout
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["AugmentedStep", "AugmentedPredictor", "save_model", "load_model"]
+__all__ = ["AugmentedStep", "AugmentedPredictor", "augmented_inputs", "rotor_rates", "save_model", "load_model"]
 
 
 class AugmentedStep(nn.Module):
@@ -65,6 +65,13 @@ def rotor_rates(u: Tensor, dt: float) -> Tensor:
     return d
 
 
+def augmented_inputs(u: Tensor, delay: float, dt: float) -> Tensor:
+    """The augmented step's input along ``u (B, H, 4)``: the rotor speeds read ``delay`` (s)
+    later and their rates, ``(B, H, 8)``."""
+    om = advance_inputs(u, delay / dt)
+    return torch.cat((om, rotor_rates(om, dt)), dim=-1)
+
+
 class AugmentedPredictor:
     """``predict(y0 (B, 13), u (B, H, 4)) -> (B, H, 13)`` of an :class:`AugmentedStep`, with the
     recorded rotor speeds advanced by ``delay`` (s) when a telemetry delay was found."""
@@ -75,8 +82,7 @@ class AugmentedPredictor:
     @torch.no_grad()
     def __call__(self, y0, u, extra=None) -> np.ndarray:
         y = as_tensor(y0, torch.float64)
-        om = advance_inputs(as_tensor(u, torch.float64), self.delay / self.step.dt)
-        parts = [om, rotor_rates(om, self.step.dt)]
+        parts = [augmented_inputs(as_tensor(u, torch.float64), self.delay, self.step.dt)]
         if extra is not None:
             parts.append(as_tensor(extra, torch.float64))
         return rollout(self.step, y, torch.cat(parts, dim=-1)).numpy()

@@ -74,12 +74,10 @@ class Exportable:
         augmented model the speeds read ``delay`` later and their rates."""
         if self.kind != "augmented":
             return flight.u.astype(np.float32)
-        from nanosysid.discover.model import rotor_rates
-        from nanosysid.rollout import advance_inputs
+        from nanosysid.discover.model import augmented_inputs
 
-        dt = float(self.step.dt)
-        u = advance_inputs(torch.from_numpy(flight.u)[None], self.delay / dt)
-        return torch.cat((u, rotor_rates(u, dt)), dim=-1)[0].float().numpy()
+        u = torch.from_numpy(flight.u)[None]
+        return augmented_inputs(u, self.delay, float(self.step.dt))[0].float().numpy()
 
     def outputs_in(self, y: np.ndarray) -> np.ndarray:
         """Flight outputs ``(N, 13)`` in the step's representation ``(N, ny)``, float32."""
