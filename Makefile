@@ -46,7 +46,7 @@ params: $(STAMP)
 
 repro: params toolchain
 	$(BIN)/dvc repro
-	$(BIN)/python -m nanosysid.readme
+	$(BIN)/python -m nanosysid.report.readme
 
 bench: $(STAMP)
 	@for f in benchmarks/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done

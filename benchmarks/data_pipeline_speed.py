@@ -15,10 +15,13 @@ from omegaconf import OmegaConf
 from rosbags.highlevel import AnyReader
 
 from nanosysid.config import load_params
-from nanosysid.recording import pipeline
-from nanosysid.recording.bags import typestore
-from nanosysid.recording.filtering import FilterConfig
-from nanosysid.recording.sync import SyncConfig
+from nanosysid.bags.extract import find_bags
+from nanosysid.bags.messages import typestore
+from nanosysid.bags.filtering import FilterConfig
+from nanosysid.bags.sync import SyncConfig
+from stages.extract import extract_folder
+from stages.filter import filter_folder
+from stages.sync import sync_folder
 
 
 def main() -> None:
@@ -28,7 +31,7 @@ def main() -> None:
     if not bags_dir.is_dir():
         sys.exit(f"{bags_dir}: no bags; run `make repro` first")
     topics = OmegaConf.to_container(r.topics, resolve=True)
-    bags = pipeline.find_bags(bags_dir)
+    bags = find_bags(bags_dir)
 
     t0 = time.perf_counter()
     n_msgs = 0
@@ -42,13 +45,13 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as d:
         d = Path(d)
         t0 = time.perf_counter()
-        pipeline.extract_folder(bags_dir, d / "extract", topics)
+        extract_folder(bags_dir, d / "extract", topics)
         t1 = time.perf_counter()
-        pipeline.sync_folder(d / "extract", d / "sync", d / "reports",
-                             SyncConfig.from_mapping(OmegaConf.to_container(r.sync)))
+        sync_folder(d / "extract", d / "sync", d / "reports",
+                    SyncConfig.from_mapping(OmegaConf.to_container(r.sync)))
         t2 = time.perf_counter()
-        pipeline.filter_folder(d / "sync", d / "flights", d / "reports",
-                               FilterConfig.from_mapping(OmegaConf.to_container(r.filter)))
+        filter_folder(d / "sync", d / "flights", d / "reports",
+                      FilterConfig.from_mapping(OmegaConf.to_container(r.filter)))
         t3 = time.perf_counter()
     print(f"{len(bags)} bags, {n_msgs} messages")
     print(f"read + deserialise only: {t_read:.1f} s")

@@ -8,14 +8,14 @@ from pathlib import Path
 from omegaconf import OmegaConf
 
 from nanosysid import benchmark
-from nanosysid.reporting import model_predictors
-from nanosysid.viz.recording import write_recording
+from nanosysid.models import build_from_options
+from nanosysid.viz.rerun import write_recording
 
 cfg = OmegaConf.load("params.yaml")
 H = int(cfg.eval.horizon)
 t0 = time.perf_counter()
 bench = benchmark.load(cfg.paths.split, horizon=H)
-predictors = model_predictors(cfg)
+predictors = {n: build_from_options(OmegaConf.to_container(m, resolve=True)) for n, m in cfg.models.items()}
 t_load = time.perf_counter() - t0
 t_pred = t_write = 0.0
 with tempfile.TemporaryDirectory() as d:

@@ -1,14 +1,46 @@
 """discover: where the nominal model and the measurements disagree, the effects that explain it,
 the augmented model physics+<effects>, and the report."""
 
+import logging
+from pathlib import Path
+
+import numpy as np
 from omegaconf import DictConfig
 
-from nanosysid.cli import run_stage
-from nanosysid.discover.stage import discover_from_config
+from nanosysid import benchmark, discover
+from nanosysid.dataio import atomic_dir
+from nanosysid.discover.model import save_discovered
+from nanosysid.identify import identified_vehicle
+from nanosysid.models import build_from_options
+from nanosysid.report.discovery import write_report
+from stages.common import plain, run_stage, vehicle_of
+
+log = logging.getLogger("nanosysid.discover")
 
 
-def main(cfg: DictConfig) -> None:
-    discover_from_config(cfg)
+def main(cfg: DictConfig) -> discover.DiscoveryResult:
+    """Run :func:`nanosysid.discover.run` on ``paths.split`` with the identify stage's k_F and
+    k_M; write ``<discover.out_dir>/model.json`` and ``<discover.report_dir>/`` (report,
+    result, figures)."""
+    dc = cfg.discover
+    oracle = None if dc.oracle is None else build_from_options(plain(dc.oracle))
+    H = int(cfg.eval.horizon)
+    bench = benchmark.load(cfg.paths.split, horizon=H)
+    vehicle = identified_vehicle(vehicle_of(cfg), dc.identified)
+    delays = np.arange(1, int(round(float(dc.delay_max) / float(dc.delay_step))) + 1) * float(dc.delay_step)
+    result = discover.run(bench.train, bench.test, vehicle=vehicle, threshold=float(dc.threshold),
+                          delays=tuple(delays), window=int(dc.savgol_window), order=int(dc.savgol_order), horizon=H,
+                          oracle=oracle, batch_size=int(cfg.eval.batch_size))
+    step = result.model.step
+    effects = {name: {"params": list(discover.LIBRARY[name].params), "coefficients": coef}
+               for name, coef in step.coefficients().items()}
+    save_discovered(Path(dc.out_dir) / "model.json", result.vehicle, effects, result.model.delay,
+                    dt=step.dt, substeps=step.substeps)
+    with atomic_dir(Path(dc.report_dir)) as tmp:
+        write_report(result, tmp)
+    log.info("discover: %s; SimErr p %.3g -> %.3g, v %.3g -> %.3g, R %.3g -> %.3g, w %.3g -> %.3g", result.name,
+             *(x for q in "pvRw" for x in (result.before.simerr[q], result.after.simerr[q])))
+    return result
 
 
 if __name__ == "__main__":

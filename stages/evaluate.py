@@ -1,13 +1,53 @@
 """evaluate: score one model on the test flights with the multi-horizon protocol."""
 
+import json
+import logging
+from pathlib import Path
+from typing import Any
+
 from omegaconf import DictConfig
 
-from nanosysid import evaluation
-from nanosysid.cli import run_stage
+from nanosysid import benchmark
+from nanosysid.dataio import atomic_file
+from nanosysid.models import build_from_options, step_cost
+from nanosysid.report.tables import results_table_md
+from stages.common import model_options, run_stage
+
+log = logging.getLogger("nanosysid.evaluate")
 
 
-def main(cfg: DictConfig, model: str) -> None:
-    evaluation.evaluate_model(cfg, model)
+def metrics_payload(scores: benchmark.Scores, table_horizons: list[int], cost: dict[str, Any]) -> dict[str, Any]:
+    """The content of ``metrics.json``, the headline figures DVC shows and compares: SimErr,
+    the MAE at the table's horizons, and the model's cost per step."""
+    return {"simerr": scores.simerr, **{f"h{h}": scores.at(h) for h in table_horizons},
+            "cost": {k: v for k, v in cost.items() if k in ("params", "flops")}}
+
+
+def main(cfg: DictConfig, name: str) -> benchmark.Scores:
+    """Score ``cfg.models[name]`` on the test flights of ``cfg.paths.split``.
+
+    Writes to ``<paths.eval>/<name>/``: ``scores.json`` (MAE curves, per flight),
+    ``metrics.json`` (headline figures) and ``table.md``.
+    """
+    options = model_options(cfg, name)
+    horizon = int(cfg.eval.horizon)
+    bench = benchmark.load(cfg.paths.split, horizon=horizon)
+    predict = build_from_options(options)
+    scores = benchmark.evaluate(predict, bench.test, horizon=horizon, batch_size=int(cfg.eval.batch_size))
+    out = Path(cfg.paths.eval) / name
+    # table horizons beyond a shortened evaluation horizon have no value to show
+    table_h = [h for h in cfg.eval.table_horizons if h <= horizon]
+    full = {"model": name, **scores.to_dict()}
+    with atomic_file(out / "scores.json") as tmp:
+        tmp.write_text(json.dumps(full, indent=1) + "\n")
+    with atomic_file(out / "metrics.json") as tmp:
+        cost = step_cost(options["kind"], predict)
+        tmp.write_text(json.dumps(metrics_payload(scores, table_h, cost), indent=1) + "\n")
+    with atomic_file(out / "table.md") as tmp:
+        tmp.write_text(results_table_md({name: scores}, table_h))
+    log.info("evaluate %s: %d windows, SimErr %s", name, scores.n_windows,
+             ", ".join(f"{k} {v:.4g}" for k, v in scores.simerr.items()))
+    return scores
 
 
 if __name__ == "__main__":

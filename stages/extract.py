@@ -1,14 +1,35 @@
 """extract: each ROS 2 bag -> one parquet table per stream, in SI units."""
 
-from omegaconf import DictConfig, OmegaConf
+import logging
+from pathlib import Path
+from typing import Any, Mapping
 
-from nanosysid.cli import run_stage
-from nanosysid.recording import pipeline
+from omegaconf import DictConfig
+from tqdm.auto import tqdm
+
+from nanosysid.bags.extract import extract_bag, find_bags
+from nanosysid.dataio import atomic_dir
+from stages.common import plain, run_stage
+
+log = logging.getLogger("nanosysid.extract")
+
+
+def extract_folder(bags_dir: Path, out_dir: Path, topics: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """Every bag of ``bags_dir`` to ``out_dir/<flight>/<stream>.parquet``."""
+    bags = find_bags(bags_dir)
+    with atomic_dir(out_dir) as tmp:
+        for bag in tqdm(bags, desc="extract", unit="bag", disable=None):
+            tables = extract_bag(bag, topics)
+            (tmp / bag.name).mkdir()
+            for stream, df in tables.items():
+                df.to_parquet(tmp / bag.name / f"{stream}.parquet", index=False)
+    log.info("extract: %d bags from %s", len(bags), bags_dir)
+    return [b.name for b in bags]
 
 
 def main(cfg: DictConfig) -> None:
     r = cfg.recording
-    pipeline.extract_folder(r.bags_dir, r.extract_dir, OmegaConf.to_container(r.topics, resolve=True))
+    extract_folder(r.bags_dir, r.extract_dir, plain(r.topics))
 
 
 if __name__ == "__main__":

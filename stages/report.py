@@ -1,13 +1,77 @@
 """report: the benchmark report (results and cost tables as Markdown and LaTeX, figures, DVC plot data)."""
 
+import logging
+import os
+from pathlib import Path
+
+import numpy as np
 from omegaconf import DictConfig
 
-from nanosysid import reporting
-from nanosysid.cli import run_stage
+from nanosysid import benchmark
+from nanosysid.dataio import atomic_file
+from nanosysid.report import tables
+from nanosysid.sim.stats import PAPER_STATS, STAT_LABELS, trajectory_stats
+from nanosysid.viz import benchmark as figures
+from nanosysid.viz.signals import ahead
+from nanosysid.models import build_from_options
+from stages.common import model_options, pick_flight, run_stage
+
+log = logging.getLogger("nanosysid.report")
+
+FIGURES = {
+    "mae_horizon": "MAE against the prediction horizon on the test flights, one line per model "
+                   "(log scale; the oracle, dashed, is the physical limit).",
+    "predictions": "{h}-step-ahead predictions against the ground truth on {flight}, {a:g} to {b:g} s "
+                   "(the physics model holds ω constant, so its ω line is the naive one; models not in "
+                   "report.lineplot.models are left out).",
+    "trajectories": "Trajectory statistics of the dataset (mean over runs) beside the paper's real flights.",
+}
 
 
 def main(cfg: DictConfig) -> None:
-    reporting.write_report(cfg)
+    """``report.markdown`` and ``report.latex`` (results and cost tables), the figures in
+    ``report.figures``, and the MAE curves of every model in ``report.plots`` (CSV)."""
+    rc = cfg.report
+    names = list(cfg.models)
+    horizons = [h for h in cfg.eval.table_horizons if h <= int(cfg.eval.horizon)]
+    rows = tables.load_scores(cfg.paths.eval, names)
+    costs = tables.load_costs(cfg.paths.eval, names, cfg.paths.get("export"))
+    H = next(iter(rows.values())).horizon
+
+    bench = benchmark.load(cfg.paths.split, horizon=H)
+    flight = pick_flight(bench.test, rc.lineplot.flight, "report.lineplot.flight")
+    fig_dir = Path(rc.figures)
+    figures.mae_horizon_figure(rows, fig_dir / "mae_horizon.png")
+    shown = [n for n in rc.lineplot.models if n in cfg.models]
+    a, b = rc.lineplot.window
+    # only the rollouts that end inside the window (and the smoothing's margin) are drawn
+    t = flight.t - flight.t[0]
+    inside = np.flatnonzero((t >= a) & (t <= b))
+    lo, hi = (inside[0], inside[-1]) if len(inside) else (0, len(flight) - 1)
+    margin = int(rc.lineplot.smooth)
+    starts = np.arange(max(lo - margin - H, 0), min(hi + margin - H + 1, len(flight) - H))
+    ahead_rows = {name: ahead(benchmark.predictions(p, flight, horizon=H, starts=starts), H, len(flight), starts)
+                  for name, p in ((n, build_from_options(model_options(cfg, n))) for n in shown)}
+    figures.predictions_figure(flight, ahead_rows, fig_dir / "predictions.png", horizon=H,
+                               window=(a, b), smooth=int(rc.lineplot.smooth))
+    figures.trajectory_stats_figure(trajectory_stats(bench.train + bench.test), PAPER_STATS, STAT_LABELS,
+                                    fig_dir / "trajectories.png")
+
+    rel = Path(rc.markdown).parent
+    captions = [(_relative(fig_dir / f"{key}.png", rel),
+                 text.format(h=H, flight=flight.name, a=a, b=b)) for key, text in FIGURES.items()]
+    with atomic_file(Path(rc.markdown)) as tmp:
+        tmp.write_text(tables.benchmark_markdown(rows, costs, horizons, captions))
+    with atomic_file(Path(rc.latex)) as tmp:
+        tmp.write_text(tables.results_table_tex(rows, horizons) + "\n" + tables.cost_table_tex(costs))
+    with atomic_file(Path(rc.plots)) as tmp:
+        tmp.write_text(tables.mae_csv(rows))
+    log.info("report: %d models, figures in %s", len(rows), fig_dir)
+
+
+
+def _relative(path: Path, start: Path) -> str:
+    return Path(os.path.relpath(path, start)).as_posix()
 
 
 if __name__ == "__main__":

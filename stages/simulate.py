@@ -1,13 +1,52 @@
-"""simulate: generate the default dataset's flight CSVs."""
+"""simulate: the default dataset, simulated, recorded as ROS 2 bags (as the real rig records)
+and written directly as flight CSVs."""
+
+import logging
+from pathlib import Path
 
 from omegaconf import DictConfig
+from tqdm.auto import tqdm
 
-from nanosysid import datasets
-from nanosysid.cli import run_stage
+from nanosysid import sim
+from nanosysid.bags.recorder import RecorderConfig, record_flight
+from nanosysid.dataio import atomic_dir, atomic_file, write_flight_csv
+from nanosysid.errors import ConfigError
+from nanosysid.sim.simulator import flights_from_record, simulate_raw
+from nanosysid.sim.stats import stats_markdown, trajectory_stats
+from stages.common import plain, run_stage, vehicle_of
+
+log = logging.getLogger("nanosysid.simulate")
 
 
 def main(cfg: DictConfig) -> None:
-    datasets.write_default_dataset(cfg)
+    """Simulate the flights of ``cfg.sim`` and record them into ``cfg.sim.out_dir`` (replaced atomically).
+
+    Writes ``bags/<flight>/`` (a ROS 2 bag per flight), the truth beside each bag
+    (``bags/<flight>.truth.parquet`` and ``.truth.json``), and the simulator's direct 100 Hz
+    output in the published layout (``csv/<flight>.csv``; the split stage assigns them to
+    train and test); the trajectory statistics go to ``<paths.sim_report>/stats.md``.
+    """
+    s = cfg.sim
+    vehicle = vehicle_of(cfg)
+    world = sim.World(dict(s.effects))
+    sim_cfg = sim.SimConfig.from_mapping(plain(s.flight))
+    specs = sim.flight_specs(dict(s.runs), str(s.date))
+    if not specs:
+        raise ConfigError("sim.runs: no flight to simulate")
+    raw = simulate_raw(specs, world=world, vehicle=vehicle, cfg=sim_cfg, seed=int(cfg.seed))
+    flights = flights_from_record(raw, world=world, vehicle=vehicle, cfg=sim_cfg)
+    topics = plain(cfg.recording.topics)
+    rec_cfg = RecorderConfig.from_mapping(plain(s.recorder))
+    out = Path(s.out_dir)
+    with atomic_dir(out) as tmp:
+        (tmp / "bags").mkdir()
+        for i, f in enumerate(tqdm(flights, desc="record", unit="bag", disable=None)):
+            record_flight(raw, i, tmp / "bags" / f.name, topics=topics, cfg=rec_cfg, noise=sim_cfg.noise,
+                          world=world, vehicle=vehicle, seed=int(cfg.seed))
+            write_flight_csv(f, tmp / "csv" / f"{f.name}.csv")
+    with atomic_file(Path(cfg.paths.sim_report) / "stats.md") as f:
+        f.write_text(stats_markdown(trajectory_stats(flights)))
+    log.info("simulated and recorded %d flights into %s", len(flights), out)
 
 
 if __name__ == "__main__":

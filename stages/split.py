@@ -3,7 +3,7 @@
 from omegaconf import DictConfig
 
 from nanosysid import splitting
-from nanosysid.cli import run_stage
+from stages.common import run_stage
 
 
 def main(cfg: DictConfig) -> None:

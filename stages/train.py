@@ -1,13 +1,50 @@
 """train: fit one learned model on the training flights (multi-step rollout loss)."""
 
+import json
+from pathlib import Path
+from typing import Any
+
+from hydra.utils import instantiate
 from omegaconf import DictConfig
 
-from nanosysid.cli import run_stage
-from nanosysid.models.train_stage import train_from_config
+from nanosysid import benchmark
+from nanosysid.errors import ConfigError
+from nanosysid.identify import identified_vehicle
+from nanosysid.models.physics import PhysicsStep
+from nanosysid.models.training import train_model
+from stages.common import model_options, plain, run_stage, vehicle_of
 
 
-def main(cfg: DictConfig, model: str) -> None:
-    train_from_config(cfg, model)
+def network_spec(m: dict[str, Any]) -> dict[str, Any]:
+    """``{"name", "options"}`` of a learned model's ``network`` block (what its checkpoint stores)."""
+    net = dict(m["network"])
+    return {"name": net.pop("name"), "options": net}
+
+
+def physics_base(cfg: DictConfig, m: dict[str, Any]) -> PhysicsStep | None:
+    """The physics step of a ``physics`` block (physics + residual), k_F and k_M identified."""
+    p = m.get("physics")
+    if p is None:
+        return None
+    v = identified_vehicle(vehicle_of(cfg), p.get("identified"))
+    return PhysicsStep(v, dt=float(p["dt"]), substeps=int(p["substeps"]), angular_dynamics=False)
+
+
+def main(cfg: DictConfig, name: str) -> dict[str, Any]:
+    m = model_options(cfg, name)
+    if m["kind"] != "learned":
+        raise ConfigError(f"models.{name}: not a learned model (kind {m['kind']!r})")
+    t = cfg.models[name].train
+    bench = benchmark.load(cfg.paths.split, horizon=int(t.horizon))
+    log_dir = Path(cfg.paths.train_logs) / name
+    summary = train_model(
+        network_spec(m), bench.train, Path(m["checkpoint"]), physics=physics_base(cfg, m),
+        optimizer=instantiate(t.optimizer), scheduler=instantiate(t.scheduler) if t.scheduler else None,
+        horizon=int(t.horizon), stride=int(t.stride), batch_size=int(t.batch_size), epochs=int(t.epochs),
+        patience=int(t.patience), seed=int(t.seed), val_runs=plain(t.val_runs), log_dir=log_dir,
+        accelerator=str(cfg.trainer.accelerator), devices=plain(cfg.trainer.devices))
+    (log_dir / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    return summary
 
 
 if __name__ == "__main__":

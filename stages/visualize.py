@@ -1,13 +1,33 @@
 """visualize: a rerun recording per test flight, every model's rollouts against the measurements."""
 
+import logging
+from pathlib import Path
+
 from omegaconf import DictConfig
 
-from nanosysid import reporting
-from nanosysid.cli import run_stage
+from nanosysid import benchmark
+from nanosysid.dataio import atomic_dir
+from nanosysid.viz.rerun import write_recording
+from nanosysid.models import build_from_options
+from stages.common import model_options, run_stage
+
+log = logging.getLogger("nanosysid.visualize")
 
 
-def main(cfg: DictConfig) -> None:
-    reporting.write_recordings(cfg)
+def main(cfg: DictConfig) -> list[Path]:
+    """One rerun recording per test flight in ``visualize.out_dir`` (replaced as a whole)."""
+    H = int(cfg.eval.horizon)
+    bench = benchmark.load(cfg.paths.split, horizon=H)
+    models = {n: build_from_options(model_options(cfg, n)) for n in cfg.models}
+    out = Path(cfg.visualize.out_dir)
+    written = []
+    with atomic_dir(out) as tmp:
+        for flight in bench.test:
+            rollouts = {name: benchmark.predictions(p, flight, horizon=H) for name, p in models.items()}
+            write_recording(flight, rollouts, tmp / f"{flight.name}.rrd", stride=int(cfg.visualize.stride))
+            written.append(out / f"{flight.name}.rrd")
+            log.info("visualize: %s", written[-1])
+    return written
 
 
 if __name__ == "__main__":

@@ -4,8 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, so3, synthetic
+from nanosysid import benchmark, models, so3, synthetic
 from nanosysid.dataio import Flight
+from nanosysid.errors import ConfigError
 
 
 def still_flight(name, T):
@@ -79,7 +80,7 @@ def test_evaluate_averages_flights_and_keeps_each():
 
 def test_evaluate_batches_give_the_same_answer_and_torch_output_is_accepted():
     flights = synthetic.synthetic_flights(["melon_s_run1"], 300, seed=3)
-    phys = benchmark.model("physics")
+    phys = models.predictor("physics")
     a = benchmark.evaluate(phys, flights, horizon=20, batch_size=7)
     b = benchmark.evaluate(phys, flights, horizon=20, batch_size=10_000)
     for k in a.mae:
@@ -95,9 +96,9 @@ def test_predictor_with_wrong_shape_is_rejected():
 
 def test_builtin_models_on_flights_of_the_nominal_dynamics():
     flights = synthetic.synthetic_flights(["melon_s_run1", "melon_s_run2"], 400, substeps=1, seed=1)
-    naive = benchmark.evaluate(benchmark.model("naive"), flights)
-    phys = benchmark.evaluate(benchmark.model("physics"), flights)
-    full = benchmark.evaluate(benchmark.model("physics_full"), flights)
+    naive = benchmark.evaluate(models.predictor("naive"), flights)
+    phys = benchmark.evaluate(models.predictor("physics"), flights)
+    full = benchmark.evaluate(models.predictor("physics_full"), flights)
     # same integrator and parameters as the data: exact up to rounding
     assert all(v < 1e-9 for v in full.simerr.values())
     # dw/dt = 0 is exact at h = 1 only in the kinematic part, and far better than naive
@@ -107,12 +108,12 @@ def test_builtin_models_on_flights_of_the_nominal_dynamics():
 
 
 def test_model_by_unknown_name():
-    with pytest.raises(KeyError, match="unknown model 'nope'"):
-        benchmark.model("nope")
+    with pytest.raises(ConfigError, match="unknown model kind 'nope'"):
+        models.predictor("nope")
 
 
 def test_scores_round_trip_through_dict():
     flights = synthetic.synthetic_flights(["melon_s_run1"], 120, seed=2)
-    s = benchmark.evaluate(benchmark.model("physics"), flights, horizon=10)
+    s = benchmark.evaluate(models.predictor("physics"), flights, horizon=10)
     back = benchmark.Scores.from_dict(s.to_dict())
     assert back.simerr == s.simerr and list(back.per_flight) == ["melon_s_run1"]

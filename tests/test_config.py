@@ -5,10 +5,14 @@ from pathlib import Path
 import pytest
 import yaml
 
-from nanosysid import config
-from nanosysid.models import build_from_config
+import dataclasses
+
+import numpy as np
+
+from nanosysid import config, synthetic
+from nanosysid.models import KINDS, build_from_options
 from nanosysid.models.learned import build_model, save_checkpoint
-from nanosysid.models.train_stage import hparams_from_config
+from nanosysid.vehicle import Vehicle
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -20,25 +24,64 @@ def test_committed_params_yaml_is_the_composition_of_conf():
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "model").glob("*.yaml")))
-def test_every_model_config_composes_and_builds(name, tmp_path):
+def test_every_model_config_composes_and_predicts(name, tmp_path):
+    from nanosysid.identify import Fit, save_params
+    from stages.train import network_spec
+
     cfg = yaml.safe_load(config.compose_text([f"+model@models.probe={name}"], conf_dir=ROOT / "conf"))
     m = cfg["models"]["probe"]
     assert m["artifact"]  # every model names what evaluate depends on
     # the artifacts are pipeline outputs: make them here from the config itself
-    if m.get("identified"):
-        m["identified"] = str(tmp_path / "params.json")
-        (tmp_path / "params.json").write_text('{"k_f": 3.7e-08, "k_m": 7.7e-11}')
+    fit = Fit(coef=3.7e-8, stderr=0.0, r2=1.0, intercept=0.0, n=1)
+    save_params(tmp_path / "params.json", fit, dataclasses.replace(fit, coef=7.7e-11), [])
+    for block in (m, m.get("physics") or {}):
+        if block.get("identified"):
+            block["identified"] = str(tmp_path / "params.json")
     if m["kind"] == "learned":
-        hp = hparams_from_config(m)
         m["checkpoint"] = str(tmp_path / "model.pt")
-        save_checkpoint(build_model(hp), hp, tmp_path / "model.pt")
+        save_checkpoint(build_model(network_spec(m)), network_spec(m), tmp_path / "model.pt")
     if m["kind"] == "discovered":
-        from nanosysid.discover.model import save_model
-        from nanosysid.vehicle import Vehicle
+        from nanosysid.discover.model import save_discovered
 
         m["model"] = str(tmp_path / "model.json")
-        save_model(tmp_path / "model.json", Vehicle(), {"rotor_drag": {"coefficients": [1e-6, 1e-6]}}, 0.01)
-    assert callable(build_from_config(m))
+        save_discovered(tmp_path / "model.json", Vehicle(), {"induced_drag": {"coefficients": [1e-6, 1e-6]}}, 0.01)
+    flight = synthetic.synthetic_flights(["melon_x_run1"], 60, seed=1)[0]
+    y0, u = flight.y[:5], np.stack([flight.u[k:k + 7] for k in range(5)])
+    pred = build_from_options(m)(y0, u)
+    assert pred.shape == (5, 7, 13) and np.isfinite(pred).all()
+
+
+def test_learned_and_exported_models_are_models_of_the_config():
+    cfg = yaml.safe_load(config.compose_text([], conf_dir=ROOT / "conf"))
+    learned = {n for n, m in cfg["models"].items() if m["kind"] == "learned"}
+    assert set(cfg["learned"]) == learned
+    assert set(cfg["export"]["models"]) <= {n for n, m in cfg["models"].items() if KINDS[m["kind"]].export}
+    assert all(cfg["export"]["models"][n] == cfg["models"][n]["artifact"] for n in cfg["export"]["models"])
+
+
+def test_dataclass_defaults_are_the_config_values():
+    from nanosysid.sim.controller import MellingerGains
+    from nanosysid.sim.simulator import NoiseConfig, SimConfig
+
+    cfg = yaml.safe_load(config.compose_text([], conf_dir=ROOT / "conf"))
+    assert dataclasses.asdict(Vehicle()) == {k: tuple(v) if isinstance(v, list) else v for k, v in cfg["vehicle"].items()}
+    flight = cfg["sim"]["flight"]
+    sim = SimConfig()
+    for f in dataclasses.fields(SimConfig):
+        if f.name not in ("noise", "trajectories", "gains"):
+            assert getattr(sim, f.name) == flight[f.name], f.name
+    assert dataclasses.asdict(NoiseConfig()) == flight["noise"]
+    assert flight["gains"] == {} and MellingerGains.from_mapping({}) == MellingerGains()
+    # the trajectories of the default SimConfig are the configured ones
+    from nanosysid.sim.simulator import _trajectory_options
+    from nanosysid.sim.trajectories import make_reference
+
+    configured = SimConfig.from_mapping(flight)
+    t = np.linspace(-1.0, 70.0, 500)
+    for name in flight["trajectories"]:
+        a = make_reference(name, **_trajectory_options(sim, name))
+        b = make_reference(name, **_trajectory_options(configured, name))
+        assert a.duration == b.duration and np.array_equal(np.stack(a.pva(t)), np.stack(b.pva(t))), name
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "data").glob("*.yaml")))

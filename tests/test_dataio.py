@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from nanosysid import benchmark, synthetic
-from nanosysid.dataio import DataError, atomic_dir, read_flight_csv, write_flight_csv
+from nanosysid.dataio import atomic_dir, read_flight_csv, write_flight_csv
+from nanosysid.errors import DataError
 
 
 @pytest.fixture

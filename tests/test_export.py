@@ -9,11 +9,12 @@ import pytest
 import torch
 
 from nanosysid import synthetic
-from nanosysid.export import ToolchainError, mcu
+from nanosysid.export import mcu
+from nanosysid.errors import ToolchainError
 from nanosysid.export.cgen import Tracer, physics_step_scalar
 from nanosysid.export.csource import learned_source, physics_source
-from nanosysid.export.steps import check_inputs, export_onnx, exportable, onnx_outputs
-from nanosysid.models.learned import LearnedPredictor, SequenceModel
+from nanosysid.export.steps import augmented_step, check_inputs, export_onnx, learned_step, onnx_outputs, physics_step
+from nanosysid.models.learned import LearnedPredictor, build_model
 from nanosysid.models.physics import PhysicsStep
 from nanosysid.rollout import StepPredictor
 from nanosysid.vehicle import Vehicle
@@ -42,7 +43,9 @@ def small_model(arch, seed=0):
     torch.manual_seed(seed)
     vehicle = Vehicle()
     physics = PhysicsStep(vehicle) if arch == "phys_res" else None
-    m = SequenceModel(arch, hidden=[6, 5], lstm_hidden=4, init_hidden=3, physics=physics)
+    net = {"name": "lstm", "options": {"hidden": 4, "init_hidden": 3}} if arch == "lstm" else \
+        {"name": "mlp", "options": {"hidden": [6, 5]}}
+    m = build_model(net, physics)
     g = torch.Generator().manual_seed(seed)
     with torch.no_grad():
         for p in m.parameters():
@@ -99,11 +102,11 @@ def test_scalar_physics_step_is_the_torch_step():
 def test_generated_c_holds_the_weights_and_computes_the_torch_step(tmp_path, arch):
     m = small_model(arch)
     c = learned_source(arch, m)
-    first = (m.cell.weight_ih if arch == "lstm" else m.net[0].weight).detach().numpy().reshape(-1)
+    first = (m.network.cell.weight_ih if arch == "lstm" else m.network.mlp[0].weight).detach().numpy().reshape(-1)
     assert f"{first[0]:.9e}f" in c.source and "malloc" not in c.source
     assert all(line.startswith("#include <math.h>") or "<stdint.h>" in line or "nsi_model.h" in line
                for line in c.source.splitlines() if line.startswith("#include"))
-    ex = exportable(LearnedPredictor(m), arch)
+    ex = learned_step(LearnedPredictor(m), arch)
     y_in, u_in, _ = flight_inputs(ex)
     got = run_on_host(tmp_path, c, y_in, u_in)
     ref = ex.teacher_forced(y_in, u_in)
@@ -112,7 +115,7 @@ def test_generated_c_holds_the_weights_and_computes_the_torch_step(tmp_path, arc
 
 
 def test_generated_physics_c_computes_the_torch_step(tmp_path):
-    ex = exportable(StepPredictor(PhysicsStep(Vehicle())), "physics")
+    ex = physics_step(StepPredictor(PhysicsStep(Vehicle())), "physics")
     y_in, u_in, _ = flight_inputs(ex)
     got = run_on_host(tmp_path, ex.c, y_in, u_in)
     ref = ex.teacher_forced(y_in, u_in)
@@ -122,7 +125,7 @@ def test_generated_physics_c_computes_the_torch_step(tmp_path):
 
 @pytest.mark.parametrize("arch", ["phys_res", "lstm"])
 def test_onnx_computes_the_torch_step(tmp_path, arch):
-    ex = exportable(LearnedPredictor(small_model(arch)), arch)
+    ex = learned_step(LearnedPredictor(small_model(arch)), arch)
     flights = synthetic.synthetic_flights(["melon_s_run1", "melon_s_run2"], 200, seed=4)
     inputs = check_inputs(ex, flights, 64, seed=0)
     files = export_onnx(ex, tmp_path)
@@ -147,7 +150,7 @@ def toolchain_or_skip():
 def test_small_model_runs_on_the_emulated_stm32(tmp_path):
     toolchain_or_skip()
     m = small_model("lstm")
-    ex = exportable(LearnedPredictor(m), "lstm")
+    ex = learned_step(LearnedPredictor(m), "lstm")
     y_in, u_in, _ = flight_inputs(ex, n=8)
     mcu.write_sources(tmp_path, ex.c, y_in, u_in)
     size = mcu.build(tmp_path)
@@ -173,10 +176,10 @@ def test_missing_toolchain_is_one_clear_message(monkeypatch):
 def test_discovered_model_exports_to_c_and_onnx(tmp_path):
     from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 
-    effects = {"rotor_drag": [1.8e-6, 1.0e-6], "body_drag": [1.5e-3, 3.0e-3], "com_offset": [1.5e-3, -1.0e-3],
-               "motor_asymmetry": [0.03, -0.02, 0.025, -0.035], "rotor_inertia": [3.9e-8]}
+    effects = {"induced_drag": [1.8e-6, 1.0e-6], "quadratic_drag": [1.5e-3, 3.0e-3], "cg_offset": [1.5e-3, -1.0e-3],
+               "rotor_spread": [0.03, -0.02, 0.025, -0.035], "rotor_gyro": [3.9e-8]}
     step = AugmentedStep(Vehicle(), list(effects), [c for v in effects.values() for c in v])
-    ex = exportable(AugmentedPredictor(step, delay=0.03), "discovered")
+    ex = augmented_step(AugmentedPredictor(step, delay=0.03), "discovered")
     assert ex.nu == 8 and "#define NSI_NU 8" in ex.c.header and "fabsf(" in ex.c.source
     _, _, f = flight_inputs(ex)
     u_all = ex.inputs_in(f)

@@ -1,11 +1,13 @@
 """k_F / k_M identification: known answers on flights of the nominal dynamics."""
 
 import dataclasses
+import re
 
 import numpy as np
+import pytest
 
-from nanosysid import benchmark, identify, synthetic
-from nanosysid.models import identified_vehicle
+from nanosysid import benchmark, identify, models, synthetic
+from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
 
@@ -32,8 +34,25 @@ def test_yaw_offset_goes_to_the_intercept_not_to_k_m():
 
 def test_physics_models_use_the_identified_coefficients(tmp_path):
     path = tmp_path / "params.json"
-    path.write_text('{"k_f": 4.0e-8, "k_m": 8.0e-11}')
-    v = identified_vehicle(None, str(path))
+    fit = identify.Fit(coef=4.0e-8, stderr=1e-10, r2=0.99, intercept=0.0, n=10)
+    identify.save_params(path, fit, dataclasses.replace(fit, coef=8.0e-11), [])
+    v = identify.identified_vehicle(Vehicle(), path)
     assert v.k_f == 4.0e-8 and v.k_m == 8.0e-11 and v.mass == Vehicle().mass
-    step = benchmark.model("physics_full", identified=str(path)).step
+    step = models.predictor("physics_full", identified=str(path)).step
     assert step.vehicle.k_f == 4.0e-8
+
+
+@pytest.mark.parametrize("content, problem", [
+    (None, "the identify stage writes them"),
+    ("{not json", "not valid JSON"),
+    ('{"k_f": 4e-8, "k_m": 8e-11}', "field 'format'"),
+    ('{"format": "nanosysid-identified-1", "k_f": "big", "k_m": 8e-11}', "field 'k_f' is 'big'"),
+    ('{"format": "nanosysid-identified-1", "k_f": 4e-8, "k_m": -1}', "field 'k_m' is -1"),
+])
+def test_bad_identified_parameters_are_one_clear_error(tmp_path, content, problem):
+    path = tmp_path / "params.json"
+    if content is not None:
+        path.write_text(content)
+    with pytest.raises(DataError, match=re.escape(problem)) as e:
+        identify.identified_vehicle(Vehicle(), path)
+    assert str(path) in str(e.value)

@@ -1,25 +1,37 @@
 """Learned models: shapes, the zero-initialised residual, training, determinism, checkpoints."""
 
-import dataclasses
+import functools
 
 import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, so3, synthetic
-from nanosysid.models.learned import ARCHS, LearnedPredictor, build_model, from_tilde, load_model, save_checkpoint, to_tilde
+from nanosysid import benchmark, models, so3, synthetic
+from nanosysid.models.learned import LearnedPredictor, build_model, from_tilde, load_checkpoint, save_checkpoint, to_tilde
+from nanosysid.models.physics import PhysicsStep
 from nanosysid.models.training import SysIdModule, train_model, window_tensors
 from nanosysid.vehicle import Vehicle
 
-VEHICLE = {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(Vehicle()).items()}
-HPARAMS = {
-    "residual": {"arch": "residual", "hidden": [120, 120]},
-    "phys_res": {"arch": "phys_res", "hidden": [120, 120], "vehicle": VEHICLE, "dt": 0.01, "substeps": 1},
-    "lstm": {"arch": "lstm", "lstm_hidden": 62, "init_hidden": 32},
+# the networks and physics bases of the three learned models of conf/model/
+NETWORKS = {
+    "residual": {"name": "mlp", "options": {"hidden": [120, 120]}},
+    "phys_res": {"name": "mlp", "options": {"hidden": [120, 120], "zero_init": True}},
+    "lstm": {"name": "lstm", "options": {"hidden": 62, "init_hidden": 32}},
 }
+ARCHS = tuple(NETWORKS)
+
+
+def physics(arch):
+    return PhysicsStep(Vehicle(), dt=0.01, substeps=1) if arch == "phys_res" else None
+
+
+def make(arch):
+    return build_model(NETWORKS[arch], physics(arch))
+
+
 PAPER_PARAMS = {"residual": 18_500, "phys_res": 18_500, "lstm": 24_700}
-QUICK = {"horizon": 20, "stride": 10, "batch_size": 64, "epochs": 3, "lr": 3e-3, "patience": 5, "seed": 0,
-         "val_runs": [3]}
+QUICK = {"horizon": 20, "stride": 10, "batch_size": 64, "epochs": 3, "patience": 5, "seed": 0, "val_runs": [3],
+         "optimizer": functools.partial(torch.optim.Adam, lr=3e-3)}
 
 
 @pytest.fixture(scope="module")
@@ -30,13 +42,13 @@ def flights():
 
 @pytest.mark.parametrize("arch", ARCHS)
 def test_parameter_counts_close_to_the_paper(arch):
-    n = sum(p.numel() for p in build_model(HPARAMS[arch]).parameters() if p.requires_grad)
+    n = sum(p.numel() for p in make(arch).parameters() if p.requires_grad)
     assert abs(n / PAPER_PARAMS[arch] - 1) < 0.10, n
 
 
 @pytest.mark.parametrize("arch", ARCHS)
 def test_one_step_and_multi_step_shapes(arch, flights):
-    model = build_model(HPARAMS[arch]).double()
+    model = make(arch).double()
     y0, u, _ = benchmark.windows(flights[0], 7)
     yt0 = to_tilde(torch.from_numpy(y0[:5]))
     state = model.init_state(yt0)
@@ -47,14 +59,12 @@ def test_one_step_and_multi_step_shapes(arch, flights):
 
 
 def test_phys_res_starts_as_the_physics_model(flights):
-    model = build_model(HPARAMS["phys_res"])
+    model = make("phys_res")
     ds = window_tensors(flights, 10)
     model.set_statistics(ds.tensors[0], ds.tensors[1].reshape(-1, 4), ds.tensors[0][1:] - ds.tensors[0][:-1])
-    model.net[-1].bias.data.zero_()  # (already zero: the residual head starts at zero)
-    assert not model.net[-1].weight.any()
     y0, u, _ = benchmark.windows(flights[0], 10)
     ours = LearnedPredictor(model)(y0[:50], u[:50])
-    phys = benchmark.model("physics")(y0[:50], u[:50])
+    phys = models.predictor("physics")(y0[:50], u[:50])
     assert np.allclose(ours, phys, atol=1e-9)
 
 
@@ -68,17 +78,16 @@ def test_representation_round_trip(flights):
 
 @pytest.mark.parametrize("arch", ARCHS)
 def test_short_training_lowers_the_loss_and_is_deterministic(arch, flights, tmp_path):
-    hp = HPARAMS[arch]
-    s1 = train_model(hp, QUICK, flights, tmp_path / "a.pt", progress=False)
-    s2 = train_model(hp, QUICK, flights, tmp_path / "b.pt", progress=False)
-    m1, c1 = load_model(tmp_path / "a.pt")
-    m2, _ = load_model(tmp_path / "b.pt")
+    s1 = train_model(NETWORKS[arch], flights, tmp_path / "a.pt", physics=physics(arch), progress=False, **QUICK)
+    s2 = train_model(NETWORKS[arch], flights, tmp_path / "b.pt", physics=physics(arch), progress=False, **QUICK)
+    m1, c1 = load_checkpoint(tmp_path / "a.pt")
+    m2, _ = load_checkpoint(tmp_path / "b.pt")
     for (k, a), b in zip(m1.state_dict().items(), m2.state_dict().values()):
         assert torch.equal(a, b), k
     assert s1 == s2
     assert (tmp_path / "a.pt").read_bytes() == (tmp_path / "b.pt").read_bytes()  # same bytes: DVC's cache relies on it
     # the trained model's validation loss is below the untrained one's
-    untrained = build_model(hp)
+    untrained = make(arch)
     untrained.load_state_dict({k: v for k, v in m1.state_dict().items() if k.endswith(("mean", "std"))}, strict=False)
     for runs in ((1, 2), (3,)):  # the fitted flights and the validation flight
         ds = window_tensors([f for f in flights if f.run in runs], QUICK["horizon"], QUICK["stride"])
@@ -89,19 +98,19 @@ def test_short_training_lowers_the_loss_and_is_deterministic(arch, flights, tmp_
 
 
 def test_checkpoint_round_trip_is_weights_only(tmp_path):
-    model = build_model(HPARAMS["lstm"])
+    model = make("lstm")
     model.y_std.fill_(2.0)
-    save_checkpoint(model, HPARAMS["lstm"], tmp_path / "m.pt")
+    save_checkpoint(model, NETWORKS["lstm"], tmp_path / "m.pt")
     raw = torch.load(tmp_path / "m.pt", weights_only=True)  # no pickled objects inside
-    assert raw["hparams"] == HPARAMS["lstm"]
-    back, _ = load_model(tmp_path / "m.pt")
+    assert raw["network"] == NETWORKS["lstm"]
+    back, _ = load_checkpoint(tmp_path / "m.pt")
     for (k, a), b in zip(model.state_dict().items(), back.state_dict().values()):
         assert torch.equal(a, b), k
-    assert isinstance(benchmark.model(str(tmp_path / "m.pt")), LearnedPredictor)
+    assert isinstance(models.predictor(str(tmp_path / "m.pt")), LearnedPredictor)
 
 
 def test_no_validation_flights_is_one_clear_error(flights, tmp_path):
-    from nanosysid.config import ConfigError
+    from nanosysid.errors import ConfigError
 
     with pytest.raises(ConfigError, match=r"val_runs \[7\]; runs present: \[1, 2, 3\]"):
-        train_model(HPARAMS["residual"], {**QUICK, "val_runs": [7]}, flights, tmp_path / "x.pt", progress=False)
+        train_model(NETWORKS["residual"], flights, tmp_path / "x.pt", progress=False, **{**QUICK, "val_runs": [7]})

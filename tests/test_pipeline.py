@@ -8,10 +8,10 @@ from pathlib import Path
 import pytest
 
 from nanosysid import config
-from nanosysid.cli import run_stage
 from nanosysid.dataio import read_flight_csv
 from stages import (discover, evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report, simulate,
                     split, sync, train, visualize)
+from stages.common import run_stage
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -48,7 +48,6 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"identify.out_dir={root / 'physics'}",
         f"models.physics.identified={root / 'physics' / 'params.json'}",
         f"models.physics_full.identified={root / 'physics' / 'params.json'}",
-        f"models.phys_res.identified={root / 'physics' / 'params.json'}",
         f"paths.train_logs={root / 'train'}",
         f"report.markdown={root / 'report' / 'benchmark.md'}",
         f"report.latex={root / 'report' / 'benchmark.tex'}",
@@ -90,8 +89,8 @@ def test_simulate_records_bags_truth_and_direct_csvs(tiny):
         f"{n}{s}" for n in ("chirp_20250601_run1", "chirp_20250601_run2", "melon_20250601_run1", "melon_20250601_run2")
         for s in ("", ".truth.json", ".truth.parquet"))
     csvs = sorted(str(p.relative_to(raw / "csv")) for p in (raw / "csv").rglob("*.csv"))
-    assert csvs == ["test/melon_20250601_run1.csv", "test/melon_20250601_run2.csv",
-                    "train/chirp_20250601_run1.csv", "train/chirp_20250601_run2.csv"]
+    assert csvs == ["chirp_20250601_run1.csv", "chirp_20250601_run2.csv", "melon_20250601_run1.csv",
+                    "melon_20250601_run2.csv"]
     assert "| melon | 3.00 / 65.00 (0.05 ✗)" in (tiny / "sim" / "stats.md").read_text()
 
 
@@ -188,7 +187,7 @@ def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
 
 @pytest.mark.parametrize("model", ["physics", "lstm", "discovered"])
 def test_export_and_mcu_stages(tiny, model):
-    from nanosysid.export import ToolchainError
+    from nanosysid.errors import ToolchainError
     from nanosysid.export.mcu import require_toolchain
 
     if model == "discovered":
@@ -217,7 +216,7 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     model = json.loads((tiny / "discovered" / "model.json").read_text())
     result = json.loads((tiny / "discovery" / "result.json").read_text())
     assert model["format"] == "nanosysid-discovered-1" and list(model["effects"]) == [
-        f["name"] for f in result["found"] if f["name"] != "telemetry_delay"]
+        f["name"] for f in result["found"] if f["name"] != "input_delay"]
     assert result["model"] == "+".join(["physics"] + [f["name"] for f in result["found"]])
     assert set(result["simerr"]) == {"nominal", "discovered", "oracle"}
     scores = json.loads((tiny / "eval" / "discovered" / "scores.json").read_text())

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import yaml
 
-from nanosysid import readme
+from nanosysid.report import readme
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -12,13 +12,13 @@ from rosbags.highlevel import AnyReader
 from rosbags.rosbag2 import StoragePlugin, Writer
 
 from nanosysid import sim, so3
-from nanosysid.dataio import DataError
-from nanosysid.recording import pipeline
-from nanosysid.recording.bags import typestore
-from nanosysid.recording.extract import extract_bag
-from nanosysid.recording.filtering import FilterConfig, fill_gaps, filter_flight, lowpass
-from nanosysid.recording.recorder import RecorderConfig, record_flight
-from nanosysid.recording.sync import SyncConfig, sync_flight
+from nanosysid.errors import DataError
+from stages.extract import extract_folder
+from nanosysid.bags.messages import typestore
+from nanosysid.bags.extract import extract_bag
+from nanosysid.bags.filtering import FilterConfig, fill_gaps, filter_flight, lowpass
+from nanosysid.bags.recorder import RecorderConfig, record_flight
+from nanosysid.bags.sync import SyncConfig, sync_flight
 from nanosysid.sim.simulator import SimConfig, simulate_raw
 from nanosysid.vehicle import Vehicle
 
@@ -234,11 +234,11 @@ def test_stage_error_names_the_bag_and_keeps_old_output(bag, tmp_path):
     bags = tmp_path / "bags"
     shutil.copytree(bag, bags / bag.name)
     out = tmp_path / "extract"
-    pipeline.extract_folder(bags, out, TOPICS)
+    extract_folder(bags, out, TOPICS)
     before = sorted(p.name for p in (out / bag.name).iterdir())
     rewrite(bag, bags / "broken_20250601_run1", drop_topics=(IMU,))
     with pytest.raises(DataError, match="broken_20250601_run1: topic"):
-        pipeline.extract_folder(bags, out, TOPICS)
+        extract_folder(bags, out, TOPICS)
     assert sorted(p.name for p in (out / bag.name).iterdir()) == before
     assert not (out / "broken_20250601_run1").exists()
 

@@ -5,9 +5,9 @@ import math
 import numpy as np
 import torch
 
-from nanosysid import benchmark, dynamics, sim, so3
+from nanosysid import benchmark, dynamics, models, sim, so3
 from nanosysid.dataio import write_flight_csv
-from nanosysid.sim import effects as fx
+from nanosysid.sim import world as fx
 from nanosysid.sim.simulator import SimConfig, simulate
 from nanosysid.sim.trajectories import Reference, make_reference
 from nanosysid.vehicle import Vehicle
@@ -184,7 +184,7 @@ def test_telemetry_delay_shifts_recorded_rotor_speeds():
 
 def test_every_effect_is_visible_to_the_nominal_model():
     """Noise-free: physics_full is near perfect with no effect, and each effect raises its error."""
-    full, naive = benchmark.model("physics_full"), benchmark.model("naive")
+    full, naive = models.predictor("physics_full"), models.predictor("naive")
     worlds = [{}] + [{e: 1.0} for e in sim.EFFECTS]
     errs = []
     for w in worlds:
@@ -234,8 +234,8 @@ def test_oracle_is_the_physical_limit():
     world = {"rotor_drag": 1.0, "com_offset": 1.0, "motor_asymmetry": 1.0}
     f = sim.simulate_flight("melon", 1, effects=world, noise=False, cfg=SHORT)
     oracle = benchmark.evaluate(sim.oracle(world), [f])
-    phys = benchmark.evaluate(benchmark.model("physics"), [f])
-    full = benchmark.evaluate(benchmark.model("physics_full"), [f])
+    phys = benchmark.evaluate(models.predictor("physics"), [f])
+    full = benchmark.evaluate(models.predictor("physics_full"), [f])
     for k in "pvRw":
         assert oracle.simerr[k] < 0.2 * min(phys.simerr[k], full.simerr[k])
-    assert benchmark.model("oracle", effects=world)(f.y[:2], f.u[None, :5].repeat(2, 0)).shape == (2, 5, 13)
+    assert models.predictor("oracle", effects=world)(f.y[:2], f.u[None, :5].repeat(2, 0)).shape == (2, 5, 13)

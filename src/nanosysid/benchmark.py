@@ -7,9 +7,9 @@ windows.
 
 Example::
 
-    from nanosysid import benchmark
+    from nanosysid import benchmark, models
     bench = benchmark.load("path/to/data")        # train/ and test/ flight CSVs
-    scores = benchmark.evaluate(benchmark.model("physics"), bench.test, horizon=50)
+    scores = benchmark.evaluate(models.predictor("physics"), bench.test, horizon=50)
     scores.mae["p"][9], scores.simerr["v"]
 """
 
@@ -23,7 +23,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from nanosysid import metrics
-from nanosysid.dataio import DataError, Flight, read_flight_csv
+from nanosysid.dataio import Flight, read_flight_csv
+from nanosysid.errors import DataError
 
 __all__ = ["Benchmark", "DataError", "Flight", "Scores", "evaluate", "load", "model", "predictions", "score", "windows"]
 
@@ -191,16 +192,3 @@ def score(y_true, y_pred) -> Scores:
         raise ValueError(f"expected (N, H, 13) arrays, got {y_true.shape}")
     errs = metrics.errors(y_true, y_pred)
     return Scores(mae={k: e.mean(axis=0) for k, e in errs.items()}, n_windows=len(y_true))
-
-
-def model(name: str, **options: Any) -> Predictor:
-    """A predictor by name: ``naive``, ``physics``, ``physics_full``, ``oracle`` (simulated
-    data), or the path of a learned model's checkpoint (``models/<name>/model.pt``).
-
-    Options are the model's config keys (for the physics models: ``vehicle``, a mapping
-    or :class:`~nanosysid.vehicle.Vehicle`; ``dt``; ``substeps``; ``identified``, the path
-    of an ``identify`` result whose k_F and k_M replace the vehicle's).
-    """
-    from nanosysid.models import build_predictor
-
-    return build_predictor(name, **options)

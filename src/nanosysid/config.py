@@ -20,16 +20,14 @@ from typing import Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-__all__ = ["compose", "compose_text", "load_params", "apply_overrides", "ConfigError"]
+from nanosysid.errors import ConfigError
+
+__all__ = ["compose", "compose_text", "load_params", "apply_overrides"]
 
 # relative to the working directory: stages run from the root of the project they belong to
 # (DVC runs them there, also in the temporary copies of `dvc exp run`)
 CONF_DIR = Path("conf")
 PARAMS = Path("params.yaml")
-
-
-class ConfigError(ValueError):
-    """A config file or an override that cannot be applied."""
 
 
 def compose_text(overrides: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) -> str:

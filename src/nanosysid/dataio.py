@@ -22,12 +22,13 @@ from typing import Iterator
 import numpy as np
 import pandas as pd
 
+from nanosysid.errors import DataError
+
 __all__ = [
     "INPUT_COLUMNS",
     "OUTPUT_COLUMNS",
     "ACCEL_COLUMNS",
     "SCHEMA",
-    "DataError",
     "Flight",
     "parse_flight_name",
     "read_flight_csv",
@@ -44,10 +45,6 @@ QUAT_COLUMNS = ["qx", "qy", "qz", "qw"]
 QUAT_NORM_TOL = 1e-3
 
 _NAME = re.compile(r"^(?P<trajectory>[A-Za-z][A-Za-z0-9-]*)_(?P<date>[^_]+)_run(?P<run>\d+)$")
-
-
-class DataError(ValueError):
-    """A data file that does not meet the schema; the message names file, field and row."""
 
 
 @dataclass

@@ -8,7 +8,9 @@ State ``x = [p, v, q, w]`` of shape ``(..., 13)``:
 - ``w`` (rad/s): angular velocity in the body frame.
 
 Input ``u`` of shape ``(..., 4)``: rotor speeds ``Omega_1..4`` (rad/s), rotors numbered as in
-the paper's 'x' layout (M1 front-right, M2 rear-right, M3 rear-left, M4 front-left).
+the paper's 'x' layout (M1 front-right, M2 rear-right, M3 rear-left, M4 front-left); their
+positions and spin directions are :data:`ROTOR_X`, :data:`ROTOR_Y` and :data:`SPIN`, from
+which the mixing matrix is built.
 
 Physical parameters are keyword-only arguments, so a partially applied function
 (``functools.partial``) is a model of one vehicle.
@@ -17,7 +19,7 @@ Physical parameters are keyword-only arguments, so a partially applied function
 from __future__ import annotations
 
 import functools
-from typing import Callable
+from typing import Callable, Sequence
 
 import torch
 from torch import Tensor
@@ -26,14 +28,28 @@ from nanosysid import so3
 
 __all__ = [
     "GRAVITY",
+    "ROTOR_X",
+    "ROTOR_Y",
+    "SPIN",
     "mixer_matrix",
+    "signed_sum",
     "rotor_wrench",
     "quad_dynamics",
     "rk4_step",
+    "integrate",
+    "renormalise",
     "split_state",
 ]
 
 GRAVITY = 9.81  # m/s^2, the paper's value
+
+# The 'x' layout, body frame x forward, y left, z up: the sign of each rotor's x and y position
+# (each at the lever arm L from the centre on both axes), and the direction of its angular
+# velocity along body z (M1 and M3 turn counter-clockwise seen from above). The drag torque of
+# a rotor turns the body against its spin: the yaw row of the mixer is ``-k_M SPIN``.
+ROTOR_X = (1.0, -1.0, -1.0, 1.0)
+ROTOR_Y = (-1.0, -1.0, 1.0, 1.0)
+SPIN = (1.0, -1.0, 1.0, -1.0)
 
 
 def split_state(x: Tensor) -> tuple[Tensor, Tensor, Tensor, Tensor]:
@@ -61,12 +77,21 @@ def mixer_matrix(*, k_f: float, k_m: float, arm: float, dtype=torch.float64, dev
     """
     kl = k_f * arm
     rows = (
-        (k_f, k_f, k_f, k_f),
-        (-kl, -kl, kl, kl),
-        (-kl, kl, kl, -kl),
-        (-k_m, k_m, -k_m, k_m),
+        (k_f,) * 4,
+        tuple(kl * y for y in ROTOR_Y),  # tau_x = sum y_i T_i
+        tuple(-kl * x for x in ROTOR_X),  # tau_y = -sum x_i T_i
+        tuple(-k_m * s for s in SPIN),
     )
     return _constant(rows, dtype, device)
+
+
+def signed_sum(signs: Sequence[float], values: Sequence):
+    """``sum_i signs_i values_i`` for signs of +-1, as additions and subtractions only: the rows
+    of the mixer over scalars or tensors alike (the generated C counts no multiplication)."""
+    total = values[0] if signs[0] > 0 else -values[0]
+    for sign, v in zip(signs[1:], values[1:]):
+        total = total + v if sign > 0 else total - v
+    return total
 
 
 def rotor_wrench(u: Tensor, *, k_f: float, k_m: float, arm: float) -> tuple[Tensor, Tensor]:
@@ -130,9 +155,40 @@ def quad_dynamics(
 
 
 def rk4_step(f: Callable[[Tensor, Tensor], Tensor], x: Tensor, u: Tensor, dt: float) -> Tensor:
-    """One classical Runge-Kutta step of ``dx/dt = f(x, u)`` with ``u`` held over the step."""
+    """One classical Runge-Kutta step of ``dx/dt = f(x, u)`` with ``u`` held over the step.
+
+    ``x`` is anything with ``+`` and multiplication by a float: a tensor, or the vector of
+    traced scalars the C generator runs it on.
+    """
     k1 = f(x, u)
     k2 = f(x + 0.5 * dt * k1, u)
     k3 = f(x + 0.5 * dt * k2, u)
     k4 = f(x + dt * k3, u)
     return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+
+
+def renormalise(y: Tensor) -> Tensor:
+    """The state ``(..., 13+)`` with its quaternion scaled back to unit norm."""
+    return torch.cat((y[..., :6], so3.quat_normalize(y[..., 6:10]), y[..., 10:]), dim=-1)
+
+
+def integrate(f: Callable, y, u, *, dt: float, substeps: int, normalise: Callable = renormalise):
+    """One sample period of every physics-based step: ``substeps`` RK4 steps of ``dx/dt = f(x, u)``,
+    then the quaternion renormalised (RK4 leaves the unit sphere by O(h^5) per step; this keeps
+    long rollouts on SO(3) without changing the rotation).
+
+    Args:
+        f: ``f(x, u) -> dx/dt``.
+        y: State at the start of the period, ``(..., 13)``.
+        u: The input, held over the period; or ``u(j, h)``, the input of substep ``j`` of
+            ``h`` seconds (an input that moves within the period).
+        dt: The sample period (s).
+        substeps: RK4 steps per period.
+        normalise: Renormalisation of the quaternion; the C generator passes its scalar one.
+    """
+    if substeps < 1:
+        raise ValueError(f"substeps must be >= 1, got {substeps}")
+    h = dt / substeps
+    for j in range(substeps):
+        y = rk4_step(f, y, u(j, h) if callable(u) else u, h)
+    return normalise(y)

@@ -9,21 +9,31 @@
   is trimmed by the controller with a constant rotor-speed difference, which a fit through the
   origin would read as part of k_M.
 
-Both use the training flights only.
+Both use the training flights only. The result, ``params.json``, is written and read through
+one pair of functions (:func:`save_params`, :func:`load_params`); the physics models,
+discovery and the export take k_F and k_M from it (:func:`identified_vehicle`).
 """
 
 from __future__ import annotations
 
+import dataclasses
+import json
+import math
 from dataclasses import asdict, dataclass
-from typing import Sequence
+from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.signal import savgol_filter
 
-from nanosysid.dataio import Flight
+from nanosysid.dataio import Flight, atomic_file
+from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "body_torque", "yaw_regressor"]
+__all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "identify", "body_torque", "yaw_regressor", "save_params",
+           "load_params", "identified_vehicle"]
+
+FORMAT = "nanosysid-identified-1"
 
 
 @dataclass(frozen=True)
@@ -82,3 +92,48 @@ def fit_yaw_moment(flights: Sequence[Flight], vehicle: Vehicle, *, window: int =
     x = np.concatenate([yaw_regressor(f.u) for f in flights])
     y = np.concatenate([body_torque(f, vehicle.inertia, window=window, polyorder=polyorder)[:, 2] for f in flights])
     return _lstsq(x, y, intercept=True)
+
+
+def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, polyorder: int = 3) -> tuple[Fit, Fit]:
+    """The thrust fit (k_F) and the yaw-moment fit (k_M) on ``flights``."""
+    if not flights:
+        raise DataError("identify: no training flight to fit k_F and k_M on")
+    return fit_thrust(flights, vehicle), fit_yaw_moment(flights, vehicle, window=window, polyorder=polyorder)
+
+
+def save_params(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Flight]) -> dict[str, Any]:
+    """Write ``params.json``: k_F and k_M, their fits, and the flights they were fitted on."""
+    payload = {"format": FORMAT, "k_f": thrust.coef, "k_m": yaw.coef, "thrust_fit": thrust.to_dict(),
+               "yaw_fit": yaw.to_dict(), "train_flights": [f.name for f in flights]}
+    with atomic_file(Path(path)) as tmp:
+        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+    return payload
+
+
+def load_params(path: str | Path) -> dict[str, Any]:
+    """Read a ``params.json`` written by :func:`save_params`, checked: k_F and k_M positive and finite."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no identified parameters; the identify stage writes them (dvc repro identify)")
+    try:
+        d = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DataError(f"{path}: not valid JSON ({e}); rerun the identify stage") from None
+    if not isinstance(d, dict) or d.get("format") != FORMAT:
+        got = d.get("format") if isinstance(d, dict) else type(d).__name__
+        raise DataError(f"{path}: not identified parameters (field 'format' is {got!r}, expected {FORMAT!r}); "
+                        "rerun the identify stage")
+    for key in ("k_f", "k_m"):
+        v = d.get(key)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:
+            raise DataError(f"{path}: field {key!r} is {v!r}, expected a positive number")
+    return d
+
+
+def identified_vehicle(vehicle: Vehicle, path: str | Path | None) -> Vehicle:
+    """``vehicle`` with k_F and k_M from the identify stage's ``params.json``; ``path`` None
+    keeps the vehicle's own (a deliberate choice of the config, ``identified: null``)."""
+    if path is None:
+        return vehicle
+    d = load_params(path)
+    return dataclasses.replace(vehicle, k_f=float(d["k_f"]), k_m=float(d["k_m"]))

@@ -8,8 +8,9 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from nanosysid.config import ConfigError
-from nanosysid.dataio import DataError, atomic_dir, parse_flight_name, read_flight_csv
+from nanosysid.errors import ConfigError
+from nanosysid.dataio import atomic_dir, parse_flight_name, read_flight_csv
+from nanosysid.errors import DataError
 
 __all__ = ["split_folder"]
 

@@ -10,7 +10,9 @@ Example::
     result.model                                   # the augmented predictor (physics+<effects>)
 
 The nominal model is ``physics_full`` (rigid body with the torque equation) with k_F and k_M
-identified on the training flights. Effects are chosen by forward selection: each round, every
+as the identify stage found them on the training flights (identified here when no vehicle is
+given). The candidates are the library of :mod:`nanosysid.effects` (knowledge from the
+literature); this package never imports the simulator's world. Effects are chosen by forward selection: each round, every
 candidate not yet chosen is fitted together with those chosen, leaving one training flight out
 at a time; the one that lowers the held-out residual most is named if that gain is at least
 ``threshold`` of the nominal residual and it helps on most held-out flights. The rounds stop
@@ -28,12 +30,13 @@ import numpy as np
 
 from nanosysid import benchmark
 from nanosysid.dataio import Flight
-from nanosysid.discover.candidates import CANDIDATES, CHANNELS, DELAY, NOMINAL, Candidate
+from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, Effect, split_coefficients
+from nanosysid.errors import DataError
 from nanosysid.discover.fit import Fitter, FlightData, flight_data, measured_wrench
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["run", "Finding", "DiscoveryResult", "CANDIDATES", "CHANNELS"]
+__all__ = ["run", "Finding", "DiscoveryResult", "LIBRARY", "CHANNELS"]
 
 
 @dataclass
@@ -41,8 +44,8 @@ class Finding:
     """A named effect with its fitted coefficients and the evidence for it.
 
     Attributes:
-        name: The candidate's name.
-        params: Coefficient name (with unit) -> fitted value, in the candidate's parametrisation.
+        name: The library effect's name.
+        params: Coefficient name (with unit) -> fitted value, in the effect's parametrisation.
         evidence: ``explained_share`` (of the nominal residual's weighted sum of squares, on the
             training flights), ``heldout_gain`` (the same, held out: fitted without the flight
             it is measured on), ``folds_improved`` / ``folds``, ``stderr`` (jackknife over the
@@ -55,7 +58,7 @@ class Finding:
 
     @property
     def touches(self) -> tuple[str, ...]:
-        return CANDIDATES[self.name].touches
+        return LIBRARY[self.name].touches
 
 
 @dataclass
@@ -110,7 +113,7 @@ def _jackknife(thetas: np.ndarray) -> np.ndarray:
     return np.sqrt((n - 1) / n * ((thetas - thetas.mean(axis=0)) ** 2).sum(axis=0))
 
 
-def _params(c: Candidate, values: Sequence[float]) -> dict[str, float]:
+def _params(c: Effect, values: Sequence[float]) -> dict[str, float]:
     return {p: float(v) for p, v in zip(c.params, values)}
 
 
@@ -123,7 +126,9 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     Args:
         train_flights: Flights the effects are fitted on (and held out from, one at a time).
         test_flights: Flights the nominal and augmented models are scored on.
-        vehicle: Nominal parameters; k_F and k_M are identified on ``train_flights``.
+        vehicle: Nominal parameters, k_F and k_M as identified (the identify stage's
+            ``params.json``, :func:`nanosysid.identify.load_params`); None: the paper's vehicle
+            with k_F and k_M identified on ``train_flights``.
         threshold: Held-out gain (share of the nominal residual) an effect must reach.
         delays: Delays (s) searched for ``telemetry_delay``.
         window, order: Savitzky-Golay window and order of the derivatives and smoothing.
@@ -131,13 +136,14 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         oracle: A predictor with the true dynamics (simulated data), scored for reference.
         analysis: Also compute where the models disagree (per channel, regime, band, rollout).
     """
-    from nanosysid.identify import fit_thrust, fit_yaw_moment
+    from nanosysid.identify import identify
 
     if len(train_flights) < 2:
-        raise ValueError(f"discover needs at least 2 training flights to hold each one out, got {len(train_flights)}")
-    v0 = vehicle or Vehicle()
-    v = dataclasses.replace(v0, k_f=fit_thrust(train_flights, v0).coef)
-    v = dataclasses.replace(v, k_m=fit_yaw_moment(train_flights, v, window=window, polyorder=order).coef)
+        raise DataError(f"discover needs at least 2 training flights to hold each one out, got {len(train_flights)}")
+    v = vehicle
+    if v is None:
+        thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)
+        v = dataclasses.replace(Vehicle(), k_f=thrust.coef, k_m=yaw.coef)
     search = _Search(train_flights, v, window, order)
     n = len(train_flights)
     need = math.ceil(2 * n / 3)
@@ -149,7 +155,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     rounds: list[list[dict[str, Any]]] = []
     while True:
         options = []
-        for name, c in CANDIDATES.items():
+        for name, c in LIBRARY.items():
             if name in linear or c is DELAY:
                 continue
             sse, thetas = search.fitter(delay).cv(_names(linear + [name]))
@@ -183,12 +189,10 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     theta = fitter.fit(names)
     _, thetas = fitter.cv(names)
     se = _jackknife(thetas)
-    sizes = [len((NOMINAL if nm == NOMINAL.name else CANDIDATES[nm]).params) for nm in names]
-    splits = np.cumsum(sizes)[:-1]
-    coef = dict(zip(names, np.split(theta, splits)))
-    errs = dict(zip(names, np.split(se, splits)))
+    coef = {k: np.array(c) for k, c in split_coefficients(names, theta).items()}
+    errs = split_coefficients(names, se)
     for f in found:
-        c = CANDIDATES[f.name]
+        c = LIBRARY[f.name]
         if c is DELAY:
             f.params = {DELAY.params[0]: delay}
             f.evidence["stderr"] = {DELAY.params[0]: _delay_stderr(search, linear, delays)}

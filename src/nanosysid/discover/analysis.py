@@ -11,7 +11,7 @@ from scipy.signal import welch
 
 from nanosysid import benchmark, so3
 from nanosysid.dataio import Flight
-from nanosysid.discover.candidates import CHANNELS
+from nanosysid.effects import CHANNELS
 from nanosysid.discover.fit import EDGE, flight_data
 
 __all__ = ["disagreement", "REGIMES", "BANDS"]

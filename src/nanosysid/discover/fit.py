@@ -20,7 +20,7 @@ import torch
 from scipy.signal import savgol_filter
 
 from nanosysid.dataio import Flight
-from nanosysid.discover.candidates import CANDIDATES, NOMINAL
+from nanosysid import effects
 from nanosysid.identify import body_torque
 from nanosysid.rollout import advance_inputs
 from nanosysid.vehicle import Vehicle
@@ -51,7 +51,7 @@ def nominal_wrench(u: np.ndarray, vehicle: Vehicle) -> np.ndarray:
 @dataclass
 class FlightData:
     """One flight's regression data for one rotor-speed delay: the residual wrench ``r (T, 6)``
-    and each candidate's features ``(T, 6, P)``, smoothed and trimmed at the edges."""
+    and each library effect's features ``(T, 6, P)``, smoothed and trimmed at the edges."""
 
     name: str
     r: np.ndarray
@@ -72,8 +72,8 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
     r = meas - _smooth(nominal_wrench(u, vehicle), window, order)
     x, om, od = (torch.from_numpy(np.ascontiguousarray(a)) for a in (flight.y, u, om_dot))
     feats = {}
-    for c in (NOMINAL, *(c for c in CANDIDATES.values() if c.features is not None)):
-        feats[c.name] = _smooth(c.features(x, om, od, vehicle).numpy(), window, order)[EDGE:-EDGE]
+    for e in (effects.NOMINAL, *(e for e in effects.LIBRARY.values() if e.columns is not None)):
+        feats[e.name] = _smooth(effects.features([e.name], x, om, od, vehicle).numpy(), window, order)[EDGE:-EDGE]
     return FlightData(flight.name, r[EDGE:-EDGE], feats)
 
 

@@ -12,12 +12,12 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from nanosysid import dynamics, so3
-from nanosysid.discover.candidates import wrench_features
+from nanosysid import dynamics, effects
+from nanosysid.errors import DataError
 from nanosysid.rollout import advance_inputs, as_tensor, rollout
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["AugmentedStep", "AugmentedPredictor", "augmented_inputs", "rotor_rates", "save_model", "load_model"]
+__all__ = ["AugmentedStep", "AugmentedPredictor", "augmented_inputs", "rotor_rates", "save_discovered", "load_discovered"]
 
 
 class AugmentedStep(nn.Module):
@@ -40,7 +40,7 @@ class AugmentedStep(nn.Module):
         om, om_dot = u_ext[..., :4], u_ext[..., 4:8]
         force = torque = None
         if self.effects:
-            w = wrench_features(self.effects, x, om, om_dot, self.vehicle) @ self.theta.to(x.dtype)  # (B, 6)
+            w = effects.features(self.effects, x, om, om_dot, self.vehicle) @ self.theta.to(x.dtype)  # (B, 6)
             force, torque = w[..., :3], w[..., 3:]
         if u_ext.shape[-1] > 8:
             force = u_ext[..., 8:11] if force is None else force + u_ext[..., 8:11]
@@ -48,10 +48,11 @@ class AugmentedStep(nn.Module):
         return self._f(x, om, force_body=force, torque_body=torque)
 
     def forward(self, y: Tensor, u_ext: Tensor) -> Tensor:
-        h = self.dt / self.substeps
-        for _ in range(self.substeps):
-            y = dynamics.rk4_step(self._dx, y, u_ext, h)
-        return torch.cat((y[..., :6], so3.quat_normalize(y[..., 6:10]), y[..., 10:]), dim=-1)
+        return dynamics.integrate(self._dx, y, u_ext, dt=self.dt, substeps=self.substeps)
+
+    def coefficients(self) -> dict[str, list[float]]:
+        """The coefficients of each effect, by name."""
+        return effects.split_coefficients(self.effects, self.theta.tolist())
 
 
 def rotor_rates(u: Tensor, dt: float) -> Tensor:
@@ -91,7 +92,7 @@ class AugmentedPredictor:
         return f"AugmentedPredictor({'+'.join(('physics',) + self.step.effects)}, delay={self.delay:g})"
 
 
-def save_model(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[str, Any]], delay: float,
+def save_discovered(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[str, Any]], delay: float,
                dt: float = 0.01, substeps: int = 1) -> dict[str, Any]:
     """The augmented model as JSON: vehicle (with the refitted k_F, k_M), effects and their
     coefficients, delay."""
@@ -105,10 +106,8 @@ def save_model(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[str, 
     return payload
 
 
-def load_model(path: str | Path, *, name: str = "discovered") -> AugmentedPredictor:
-    """The predictor of a model written by :func:`save_model`."""
-    from nanosysid.dataio import DataError
-
+def load_discovered(path: str | Path, *, name: str = "discovered") -> AugmentedPredictor:
+    """The predictor of a model written by :func:`save_discovered`."""
     d = json.loads(Path(path).read_text())
     if d.get("format") != "nanosysid-discovered-1":
         raise DataError(f"{path}: not a discovered model (field 'format' is {d.get('format')!r})")

@@ -12,7 +12,9 @@ import re
 from collections import Counter
 from typing import Sequence, Union
 
-__all__ = ["Tracer", "Sym", "flit", "sqrt", "fabs", "physics_step_c", "physics_step_scalar", "Num"]
+from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, integrate, signed_sum
+
+__all__ = ["Tracer", "Sym", "Vector", "flit", "sqrt", "physics_step_c", "physics_step_scalar", "Num"]
 
 
 def flit(x: float) -> str:
@@ -80,6 +82,7 @@ class Sym:
     def __truediv__(self, o): return self._bin(o, "/", "div")
     def __rtruediv__(self, o): return self._bin(o, "/", "div", swap=True)
     def __neg__(self): return self.t.emit(f"-{self.ref}", "neg")
+    def __abs__(self): return self.t.emit(f"fabsf({self.ref})", "abs")
 
 
 Num = Union[Sym, float]
@@ -89,12 +92,6 @@ def sqrt(x: Num) -> Num:
     if isinstance(x, Sym):
         return x.t.emit(f"sqrtf({x.ref})", "sqrt")
     return float(x) ** 0.5
-
-
-def fabs(x: Num) -> Num:
-    if isinstance(x, Sym):
-        return x.t.emit(f"fabsf({x.ref})", "abs")
-    return abs(float(x))
 
 
 def _cross(a: Sequence[Num], b: Sequence[Num]) -> list[Num]:
@@ -108,49 +105,45 @@ def _rotate(qv: Sequence[Num], qw: Num, v: Sequence[Num]) -> list[Num]:
     return [v[i] + qw * t[i] + ct[i] for i in range(3)]
 
 
-SPIN = (1.0, -1.0, 1.0, -1.0)
+class Vector(list):
+    """A state of scalars with the vector arithmetic :func:`nanosysid.dynamics.rk4_step` uses."""
+
+    def __add__(self, other):  # type: ignore[override]
+        return Vector(a + b for a, b in zip(self, other))
+
+    def __rmul__(self, c: float) -> "Vector":
+        return Vector(c * a for a in self)
+
+    __mul__ = __rmul__
 
 
-def _effect_wrench(name: str, theta: Sequence[float], x, u, u_dot, s, *, k_f, k_m, arm, **_) -> tuple[list, list]:
-    """Body force and torque of one named effect (:mod:`nanosysid.discover.candidates`, the
-    same formulas in scalar form) with coefficients ``theta``."""
-    v, qv, qw, w = x[3:6], x[6:9], x[9], x[10:13]
-    zero = [0.0, 0.0, 0.0]
-    if name in ("rotor_drag", "body_drag"):
-        vb = _rotate([-c for c in qv], qw, v)
-        if name == "rotor_drag":
-            total = u[0] + u[1] + u[2] + u[3]
-            gain = [theta[0] * total, theta[0] * total, theta[1] * total]
-        else:
-            gain = [theta[0] * fabs(vb[0]), theta[0] * fabs(vb[1]), theta[1] * fabs(vb[2])]
-        return [-(gain[i] * vb[i]) for i in range(3)], zero
-    if name == "com_offset":
-        thrust = k_f * (s[0] + s[1] + s[2] + s[3])
-        return zero, [-(thrust * theta[1]), thrust * theta[0], 0.0]
-    if name == "motor_asymmetry":
-        kl = k_f * arm
-        ds = [theta[i] * s[i] for i in range(4)]
-        return [0.0, 0.0, k_f * (ds[0] + ds[1] + ds[2] + ds[3])], [
-            kl * (-ds[0] - ds[1] + ds[2] + ds[3]), kl * (-ds[0] + ds[1] + ds[2] - ds[3]),
-            k_m * (-ds[0] + ds[1] - ds[2] + ds[3])]
-    if name == "rotor_inertia":
-        h = theta[0] * (u[0] - u[1] + u[2] - u[3])
-        return zero, [-(w[1] * h), w[0] * h, -(theta[0] * (u_dot[0] - u_dot[1] + u_dot[2] - u_dot[3]))]
-    raise ValueError(f"no scalar form of effect {name!r}")
+def _normalise(x: Sequence[Num]) -> list[Num]:
+    """:func:`nanosysid.dynamics.renormalise` in scalar form."""
+    q = x[6:10]
+    inv = 1.0 / sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
+    return [*x[:6], *(qi * inv for qi in q), *x[10:]]
 
 
-def _dynamics(x: Sequence[Num], s: Sequence[Num], u=(), u_dot=(), *, mass, inertia, k_f, k_m, arm, gravity,
-              angular_dynamics, effects=()):
-    """``dx/dt`` of :func:`nanosysid.dynamics.quad_dynamics` in scalar form; ``s`` are the
-    squared rotor speeds; ``effects`` adds the named effects' wrench (``(name, theta)`` pairs)."""
+def _dynamics(x: Sequence[Num], om: Sequence[Num], s: Sequence[Num], om_dot: Sequence[Num], *, mass, inertia, k_f,
+              k_m, arm, gravity, angular_dynamics, effects=()) -> Vector:
+    """``dx/dt`` of :func:`nanosysid.dynamics.quad_dynamics` in scalar form: rotor speeds
+    ``om``, their squares ``s`` (computed once per step, not per RK4 stage) and rates
+    ``om_dot``; ``effects`` adds the named effects' wrench (``(name, theta)`` pairs of
+    :mod:`nanosysid.effects`)."""
+    from nanosysid import effects as library
+    from nanosysid.vehicle import Vehicle
+
     v, qv, qw, w = x[3:6], x[6:9], x[9], x[10:13]
     thrust = k_f * (s[0] + s[1] + s[2] + s[3])
     f_b = [0.0, 0.0, thrust]
     tau_extra = [0.0, 0.0, 0.0]
-    for name, theta in effects:
-        f, t = _effect_wrench(name, theta, x, u, u_dot, s, k_f=k_f, k_m=k_m, arm=arm)
-        f_b = [a + b for a, b in zip(f_b, f)]
-        tau_extra = [a + b for a, b in zip(tau_extra, t)]
+    if effects:
+        vehicle = Vehicle(mass=mass, inertia=tuple(inertia), arm=arm, k_f=k_f, k_m=k_m, gravity=gravity)
+        sg = library.Signals(v=_rotate([-c for c in qv], qw, v), w=w, om=om, s=s, om_dot=om_dot)
+        for name, theta in effects:
+            f, t = library.wrench(name, theta, sg, vehicle)
+            f_b = [a + b for a, b in zip(f_b, f)]
+            tau_extra = [a + b for a, b in zip(tau_extra, t)]
     rot = _rotate(qv, qw, f_b)
     v_dot = [rot[i] * (1.0 / mass) + g for i, g in enumerate((0.0, 0.0, -gravity))]
     cw = _cross(qv, w)
@@ -158,34 +151,28 @@ def _dynamics(x: Sequence[Num], s: Sequence[Num], u=(), u_dot=(), *, mass, inert
     q_dot.append(-0.5 * (qv[0] * w[0] + qv[1] * w[1] + qv[2] * w[2]))
     if angular_dynamics:
         kl = k_f * arm
-        tau = [kl * (-s[0] - s[1] + s[2] + s[3]), kl * (-s[0] + s[1] + s[2] - s[3]),
-               k_m * (-s[0] + s[1] - s[2] + s[3])]
+        tau = [kl * signed_sum(ROTOR_Y, s), kl * signed_sum([-c for c in ROTOR_X], s),
+               k_m * signed_sum([-c for c in SPIN], s)]
         tau = [a + b for a, b in zip(tau, tau_extra)]
         Jw = [inertia[i] * w[i] for i in range(3)]
         c = _cross(w, Jw)
         w_dot = [(tau[i] - c[i]) * (1.0 / inertia[i]) for i in range(3)]
     else:
         w_dot = [0.0, 0.0, 0.0]
-    return [*v, *v_dot, *q_dot, *w_dot]
+    return Vector([*v, *v_dot, *q_dot, *w_dot])
 
 
 def physics_step_scalar(y: Sequence[Num], u: Sequence[Num], *, dt: float, substeps: int, **params) -> list[Num]:
-    """:class:`nanosysid.models.physics.PhysicsStep` in scalar form: RK4 substeps with the
-    input held, then the quaternion renormalised. With ``effects``, ``u`` holds the rotor
-    speeds and their rates (8 values), as :class:`nanosysid.discover.model.AugmentedStep`."""
+    """:class:`nanosysid.models.physics.PhysicsStep` in scalar form, through the same
+    :func:`nanosysid.dynamics.integrate`. With ``effects``, ``u`` holds the rotor speeds and
+    their rates (8 values), as :class:`nanosysid.discover.model.AugmentedStep`."""
     om, om_dot = list(u[:4]), list(u[4:8])
     s = [ui * ui for ui in om]
-    h = dt / substeps
-    x = list(y)
-    for _ in range(substeps):
-        k1 = _dynamics(x, s, om, om_dot, **params)
-        k2 = _dynamics([a + (0.5 * h) * k for a, k in zip(x, k1)], s, om, om_dot, **params)
-        k3 = _dynamics([a + (0.5 * h) * k for a, k in zip(x, k2)], s, om, om_dot, **params)
-        k4 = _dynamics([a + h * k for a, k in zip(x, k3)], s, om, om_dot, **params)
-        x = [a + (h / 6.0) * (b + 2.0 * c + 2.0 * d + e) for a, b, c, d, e in zip(x, k1, k2, k3, k4)]
-    q = x[6:10]
-    inv = 1.0 / sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
-    return [*x[:6], *(qi * inv for qi in q), *x[10:]]
+
+    def f(x, _):
+        return _dynamics(x, om, s, om_dot, **params)
+
+    return integrate(f, Vector(y), u, dt=dt, substeps=substeps, normalise=_normalise)
 
 
 def physics_step_c(name: str, *, dt: float, substeps: int, **params) -> tuple[str, Counter]:

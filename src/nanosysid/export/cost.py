@@ -7,7 +7,7 @@ from typing import Any
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
-__all__ = ["step_cost", "physics_flops"]
+__all__ = ["physics_flops", "no_cost", "physics_cost", "learned_cost", "augmented_cost"]
 
 
 def physics_flops(step) -> int:
@@ -25,9 +25,13 @@ def _torch_flops(fn, *args) -> int:
     return int(counter.get_total_flops())
 
 
-def _learned_cost(model) -> dict[str, Any]:
+def learned_cost(predict) -> dict[str, Any]:
+    """Trainable parameters, and the FLOPs of one recurrent step as torch's FLOP counter
+    reports them (matrix products only, a multiply-add counted as 2)."""
     from nanosysid.export.csource import TILDE_FLOPS
     from nanosysid.models.learned import from_tilde, to_tilde
+
+    model = predict.model
 
     params = sum(p.numel() for p in model.parameters() if p.requires_grad)
     y = torch.zeros(1, 13, dtype=model.y_mean.dtype)
@@ -38,7 +42,7 @@ def _learned_cost(model) -> dict[str, Any]:
         state = model.init_state(yt)  # the LSTM's initialisation runs once per rollout, not per step
     flops = _torch_flops(model.step, yt, u, state)
     method = "torch.utils.flop_counter (matrix products, 2 per multiply-add)"
-    if model.arch == "phys_res":
+    if model.physics is not None:
         # torch counts only the physics step's matrix product; the exact count replaces it
         flops += (physics_flops(model.physics) - _torch_flops(model.physics, from_tilde(yt), u)
                   + TILDE_FLOPS["to_tilde"] + TILDE_FLOPS["from_tilde"])
@@ -46,28 +50,19 @@ def _learned_cost(model) -> dict[str, Any]:
     return {"params": int(params), "flops": int(flops), "flops_method": method}
 
 
-def step_cost(predict: Any) -> dict[str, Any]:
-    """Parameters and FLOPs of one step of a benchmark predictor.
-
-    Learned models: trainable parameters, and the FLOPs of one recurrent step as torch's
-    FLOP counter reports them (matrix products only, a multiply-add counted as 2). The
-    physics models: no trainable parameters (``params: None``) and the exact operation count
-    of their generated C step. ``flops: None`` means no count is available for that model
-    (the naive model computes nothing; the oracle is the simulator).
-    """
-    from nanosysid.models.learned import LearnedPredictor
-    from nanosysid.models.physics import PhysicsStep
-    from nanosysid.rollout import StepPredictor
-
-    if isinstance(predict, LearnedPredictor):
-        return _learned_cost(predict.model)
-    if isinstance(predict, StepPredictor) and isinstance(predict.step, PhysicsStep):
-        return {"params": None, "flops": physics_flops(predict.step), "flops_method": "exact count of the generated C"}
-    from nanosysid.discover.model import AugmentedPredictor
-
-    if isinstance(predict, AugmentedPredictor):
-        from nanosysid.export.steps import exportable
-
-        return {"params": None, "flops": exportable(predict, "discovered").c.flops,
-                "flops_method": "exact count of the generated C"}
+def no_cost(predict) -> dict[str, Any]:
+    """No count: the naive model computes nothing, the oracle is the simulator."""
     return {"params": None, "flops": None, "flops_method": None}
+
+
+def physics_cost(predict) -> dict[str, Any]:
+    """No trainable parameters; the exact operation count of the generated C step."""
+    return {"params": None, "flops": physics_flops(predict.step), "flops_method": "exact count of the generated C"}
+
+
+def augmented_cost(predict) -> dict[str, Any]:
+    """The discovered model: as :func:`physics_cost`, with its effects in the C step."""
+    from nanosysid.export.steps import augmented_step
+
+    return {"params": None, "flops": augmented_step(predict, "discovered").c.flops,
+            "flops_method": "exact count of the generated C"}

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from nanosysid.export import ToolchainError
+from nanosysid.errors import ToolchainError
 from nanosysid.export.cgen import flit
 from nanosysid.export.csource import CModel
 

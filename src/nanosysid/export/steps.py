@@ -11,10 +11,11 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from nanosysid.export import ExportError
+from nanosysid.errors import ExportError
 from nanosysid.export.csource import CModel, learned_source, physics_source
 
-__all__ = ["Exportable", "exportable", "ExportError", "export_onnx", "onnx_outputs", "check_inputs"]
+__all__ = ["Exportable", "physics_step", "augmented_step", "learned_step", "export_onnx", "onnx_outputs",
+           "check_inputs"]
 
 
 class _FeedForwardStep(nn.Module):
@@ -26,7 +27,7 @@ class _FeedForwardStep(nn.Module):
         return self.model.step(yt, u, None)[0]
 
 
-class _LstmStep(nn.Module):
+class _RecurrentStep(nn.Module):
     def __init__(self, model) -> None:
         super().__init__()
         self.model = model
@@ -36,7 +37,7 @@ class _LstmStep(nn.Module):
         return y_next, h, c
 
 
-class _LstmInit(nn.Module):
+class _RecurrentInit(nn.Module):
     def __init__(self, model) -> None:
         super().__init__()
         self.model = model
@@ -49,8 +50,10 @@ class _LstmInit(nn.Module):
 class Exportable:
     """One model's step in float32.
 
-    ``kind`` is ``physics`` (outputs of 13, no state), ``feedforward`` (the 12-dimensional
-    outputs of the learned models, no state) or ``lstm`` (12, with hidden and cell state).
+    ``kind`` says what it is (``physics``, ``augmented``, ``feedforward``, ``recurrent``). The
+    physics steps work on the 13-dimensional outputs, the learned ones on the 12-dimensional
+    representation (``ny``); a recurrent step carries a hidden and a cell state, which
+    ``init`` computes from the first output.
     """
 
     name: str
@@ -60,6 +63,7 @@ class Exportable:
     c: CModel
     params: int | None
     delay: float = 0.0  # s, the augmented model's rotor-speed delay (its inputs are read this much later)
+    with_rates: bool = False  # the input holds the rotor speeds' rates too (the augmented model)
 
     @property
     def ny(self) -> int:
@@ -67,12 +71,16 @@ class Exportable:
 
     @property
     def nu(self) -> int:
-        return 8 if self.kind == "augmented" else 4
+        return 8 if self.with_rates else 4
+
+    @property
+    def recurrent(self) -> bool:
+        return self.init is not None
 
     def inputs_in(self, flight) -> np.ndarray:
         """The step's input along a flight, ``(T, nu)`` float32: rotor speeds, and for the
         augmented model the speeds read ``delay`` later and their rates."""
-        if self.kind != "augmented":
+        if not self.with_rates:
             return flight.u.astype(np.float32)
         from nanosysid.discover.model import augmented_inputs
 
@@ -84,7 +92,7 @@ class Exportable:
         from nanosysid.models.learned import to_tilde
 
         t = torch.from_numpy(np.ascontiguousarray(y, dtype=np.float64))
-        if self.kind not in ("physics", "augmented"):
+        if self.ny == 12:
             t = to_tilde(t)
         return t.float().numpy()
 
@@ -93,7 +101,7 @@ class Exportable:
         """The step on ``y_in[k], u_in[k]`` for k = 0..K-1, state carried from ``y_in[0]``
         (what the firmware runs): ``(K, ny)`` float32."""
         y, u = torch.from_numpy(np.asarray(y_in, np.float32)), torch.from_numpy(np.asarray(u_in, np.float32))
-        if self.kind != "lstm":
+        if not self.recurrent:
             return self.step(y, u).numpy()
         h, c = self.init(y[:1])
         out = []
@@ -103,48 +111,47 @@ class Exportable:
         return torch.stack(out).numpy()
 
 
-def exportable(predict: Any, name: str) -> Exportable:
-    """The exportable step of a benchmark predictor (physics, learned or discovered)."""
-    from nanosysid.discover import CANDIDATES
-    from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
-    from nanosysid.models.learned import LearnedPredictor
+def physics_step(predict, name: str) -> Exportable:
+    """The exportable step of a physics model (a :class:`~nanosysid.rollout.StepPredictor` of a
+    :class:`~nanosysid.models.physics.PhysicsStep`)."""
     from nanosysid.models.physics import PhysicsStep
-    from nanosysid.rollout import StepPredictor
 
-    if isinstance(predict, StepPredictor) and isinstance(predict.step, PhysicsStep):
-        p = predict.step
-        step = PhysicsStep(p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.angular_dynamics)
-        c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.angular_dynamics)
-        return Exportable(name, "physics", step.float().eval(), None, c, None)
-    if isinstance(predict, AugmentedPredictor):
-        p = predict.step
-        theta, effects, k = p.theta.tolist(), [], 0
-        for n in p.effects:
-            effects.append((n, theta[k:k + len(CANDIDATES[n].params)]))
-            k += len(CANDIDATES[n].params)
-        step = AugmentedStep(p.vehicle, p.effects, theta, dt=p.dt, substeps=p.substeps)
-        c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=True, effects=effects)
-        return Exportable(name, "augmented", step.float().eval(), None, c, None, delay=predict.delay)
-    if isinstance(predict, LearnedPredictor):
-        import copy
+    p = predict.step
+    step = PhysicsStep(p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.angular_dynamics)
+    c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.angular_dynamics)
+    return Exportable(name, "physics", step.float().eval(), None, c, None)
 
-        model = copy.deepcopy(predict.model).float().eval()
-        params = sum(q.numel() for q in model.parameters() if q.requires_grad)
-        c = learned_source(name, model)
-        if model.arch == "lstm":
-            return Exportable(name, "lstm", _LstmStep(model).eval(), _LstmInit(model).eval(), c, params)
-        return Exportable(name, "feedforward", _FeedForwardStep(model).eval(), None, c, params)
-    raise ExportError(f"model {name!r} ({type(predict).__name__}) has no exportable step: "
-                      "physics models and learned checkpoints export")
+
+def augmented_step(predict, name: str) -> Exportable:
+    """The exportable step of the discovered model (an :class:`~nanosysid.discover.model.AugmentedPredictor`)."""
+    from nanosysid.discover.model import AugmentedStep
+
+    p = predict.step
+    effects = list(p.coefficients().items())
+    step = AugmentedStep(p.vehicle, p.effects, p.theta.tolist(), dt=p.dt, substeps=p.substeps)
+    c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=True, effects=effects)
+    return Exportable(name, "augmented", step.float().eval(), None, c, None, delay=predict.delay, with_rates=True)
+
+
+def learned_step(predict, name: str) -> Exportable:
+    """The exportable step of a learned model (a :class:`~nanosysid.models.learned.LearnedPredictor`)."""
+    import copy
+
+    model = copy.deepcopy(predict.model).float().eval()
+    params = sum(q.numel() for q in model.parameters() if q.requires_grad)
+    c = learned_source(name, model)
+    if model.network.recurrent:
+        return Exportable(name, "recurrent", _RecurrentStep(model).eval(), _RecurrentInit(model).eval(), c, params)
+    return Exportable(name, "feedforward", _FeedForwardStep(model).eval(), None, c, params)
 
 
 def check_inputs(ex: Exportable, flights, n: int, seed: int) -> dict[str, np.ndarray]:
     """``n`` inputs of the step drawn (seeded) from the flights: outputs and rotor speeds of
-    random samples; for the LSTM also its state, after 0..49 steps from a random start."""
+    random samples; for a recurrent step also its state, after 0..49 steps from a random start."""
     rng = np.random.default_rng(seed)
     y = np.concatenate([f.y for f in flights])
     u = np.concatenate([ex.inputs_in(f) for f in flights])
-    if ex.kind != "lstm":
+    if not ex.recurrent:
         idx = rng.integers(0, len(y), n)
         return {"y": ex.outputs_in(y[idx]), "u": u[idx]}
     H = 50
@@ -169,7 +176,7 @@ def check_inputs(ex: Exportable, flights, n: int, seed: int) -> dict[str, np.nda
 
 
 def export_onnx(ex: Exportable, out: Path) -> list[Path]:
-    """``step.onnx`` (and ``init.onnx`` for the LSTM) in ``out``; batch size is dynamic."""
+    """``step.onnx`` (and ``init.onnx`` for a recurrent step) in ``out``; batch size is dynamic."""
     import warnings
 
     def one(module: nn.Module, args: tuple, names_in: list[str], names_out: list[str], path: Path) -> None:
@@ -183,7 +190,7 @@ def export_onnx(ex: Exportable, out: Path) -> list[Path]:
 
     ny, z = ex.ny, torch.zeros
     files = [out / "step.onnx"]
-    if ex.kind == "lstm":
+    if ex.recurrent:
         nh = ex.c.nstate // 2
         one(ex.step, (z(1, ny), z(1, 4), z(1, nh), z(1, nh)), ["y", "u", "h", "c"], ["y_next", "h_next", "c_next"],
             files[0])

@@ -1,47 +1,63 @@
-"""Benchmark models by name."""
+"""Benchmark models by kind: one registry maps each kind to its builder, its exporter and its
+cost counter.
+
+A model's config block (``models.<name>``) names its ``kind``; the rest are the builder's
+keyword arguments. Learned models of every network are one kind (``learned``): their network
+comes from the checkpoint.
+"""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable
 
+from nanosysid.errors import ConfigError, ExportError
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["build_predictor", "build_from_config", "identified_vehicle", "MODEL_KINDS"]
+__all__ = ["ModelKind", "KINDS", "predictor", "build_from_options", "step_cost", "exportable"]
+
+Predictor = Callable[..., Any]
+
+
+@dataclass(frozen=True)
+class ModelKind:
+    """What the pipeline does with one kind of model.
+
+    Attributes:
+        build: ``build(**options) -> predictor``.
+        export: ``export(predictor, name) -> Exportable`` (:mod:`nanosysid.export.steps`);
+            None when the kind has no step to run on the microcontroller.
+        cost: ``cost(predictor) -> {"params", "flops", "flops_method"}`` of one step.
+    """
+
+    build: Callable[..., Predictor]
+    export: Callable[[Predictor, str], Any] | None
+    cost: Callable[[Predictor], dict[str, Any]]
 
 
 def _vehicle(v: Any) -> Vehicle:
+    """A vehicle from a config mapping; the paper's (``Vehicle()``, equal to ``conf/vehicle``)
+    for the Python API's ``models.predictor("physics")``."""
     if v is None:
         return Vehicle()
     return v if isinstance(v, Vehicle) else Vehicle.from_mapping(v)
 
 
-def _naive(**options: Any) -> Callable:
+def _naive(**options: Any) -> Predictor:
     from nanosysid.models.physics import naive_predict
 
     if options:
-        raise TypeError(f"naive model takes no options, got {sorted(options)}")
+        raise ConfigError(f"naive model takes no options, got {sorted(options)}")
     return naive_predict
 
 
-def identified_vehicle(vehicle: Any = None, identified: str | None = None) -> Vehicle:
-    """The vehicle with k_F and k_M from an ``identify`` result (``params.json``), if given."""
-    v = _vehicle(vehicle)
-    if identified:
-        import dataclasses
-        import json
-        from pathlib import Path
-
-        fit = json.loads(Path(identified).read_text())
-        v = dataclasses.replace(v, k_f=float(fit["k_f"]), k_m=float(fit["k_m"]))
-    return v
-
-
-def _physics(*, angular_dynamics: bool, name: str) -> Callable:
-    def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1, identified: str | None = None) -> Callable:
+def _physics(*, angular_dynamics: bool, name: str) -> Callable[..., Predictor]:
+    def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1, identified: str | None = None) -> Predictor:
+        from nanosysid.identify import identified_vehicle
         from nanosysid.models.physics import PhysicsStep
         from nanosysid.rollout import StepPredictor
 
-        v = identified_vehicle(vehicle, identified)
+        v = identified_vehicle(_vehicle(vehicle), identified)
         step = PhysicsStep(v, dt=dt, substeps=substeps, angular_dynamics=angular_dynamics)
         return StepPredictor(step, name=name)
 
@@ -49,56 +65,99 @@ def _physics(*, angular_dynamics: bool, name: str) -> Callable:
 
 
 def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: float = 0.01,
-            rotor_delay: float | None = None) -> Callable:
+            rotor_delay: float | None = None) -> Predictor:
     from nanosysid import sim
 
     eff = None if effects is None else dict(effects)
     return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay)
 
 
-def _learned(*, checkpoint: str, **architecture: Any) -> Callable:
-    """A trained model from its checkpoint; the architecture keys of its config are in the
-    checkpoint too, so they are not needed here."""
-    from nanosysid.models.learned import LearnedPredictor, load_model
+def _learned(*, checkpoint: str, **training: Any) -> Predictor:
+    """A trained model from its checkpoint; the network and training keys of its config are
+    in the checkpoint (or only matter to training), so they are not needed here."""
+    from nanosysid.models.learned import LearnedPredictor, load_checkpoint
 
-    model, ckpt = load_model(checkpoint)
-    return LearnedPredictor(model, name=ckpt["hparams"]["arch"])
+    model, ckpt = load_checkpoint(checkpoint)
+    return LearnedPredictor(model, name=ckpt["network"]["name"])
 
 
-def _discovered(*, model: str) -> Callable:
+def _discovered(*, model: str) -> Predictor:
     """The nominal model with the effects the discover stage named (``model.json``)."""
-    from nanosysid.discover.model import load_model
+    from nanosysid.discover.model import load_discovered
 
-    return load_model(model)
+    return load_discovered(model)
 
 
-MODEL_KINDS: dict[str, Callable[..., Callable]] = {
-    "naive": _naive,
-    "physics": _physics(angular_dynamics=False, name="physics"),
-    "physics_full": _physics(angular_dynamics=True, name="physics_full"),
-    "oracle": _oracle,
-    "learned": _learned,
-    "discovered": _discovered,
+def _export(which: str) -> Callable[[Predictor, str], Any]:
+    def export(predict: Predictor, name: str) -> Any:
+        from nanosysid.export import steps
+
+        return getattr(steps, which)(predict, name)
+
+    return export
+
+
+def _cost(which: str) -> Callable[[Predictor], dict[str, Any]]:
+    def cost(predict: Predictor) -> dict[str, Any]:
+        from nanosysid.export import cost as costs
+
+        return getattr(costs, which)(predict)
+
+    return cost
+
+
+KINDS: dict[str, ModelKind] = {
+    "naive": ModelKind(_naive, None, _cost("no_cost")),
+    "physics": ModelKind(_physics(angular_dynamics=False, name="physics"), _export("physics_step"), _cost("physics_cost")),
+    "physics_full": ModelKind(_physics(angular_dynamics=True, name="physics_full"), _export("physics_step"),
+                              _cost("physics_cost")),
+    "oracle": ModelKind(_oracle, None, _cost("no_cost")),
+    "learned": ModelKind(_learned, _export("learned_step"), _cost("learned_cost")),
+    "discovered": ModelKind(_discovered, _export("augmented_step"), _cost("augmented_cost")),
 }
 
 
-def build_predictor(name: str, **options: Any) -> Callable:
-    """Build a predictor ``predict(y0 (B,13), u (B,H,4)) -> (B,H,13)`` by model name, or from
-    the path of a learned model's checkpoint."""
-    if name.endswith((".pt", ".ckpt")):
-        return _learned(checkpoint=name)
+def _kind(kind: str) -> ModelKind:
     try:
-        factory = MODEL_KINDS[name]
+        return KINDS[kind]
     except KeyError:
-        raise KeyError(f"unknown model {name!r}; known: {', '.join(sorted(MODEL_KINDS))}") from None
-    return factory(**options)
+        raise ConfigError(f"unknown model kind {kind!r}; known: {', '.join(sorted(KINDS))}") from None
 
 
-def build_from_config(options: dict[str, Any]) -> Callable:
-    """Build the predictor of a ``models.<name>`` config block (``kind`` plus options).
+def predictor(kind: str, **options: Any) -> Predictor:
+    """A predictor ``predict(y0 (B,13), u (B,H,4)) -> (B,H,13)`` by kind: ``naive``,
+    ``physics``, ``physics_full``, ``oracle`` (simulated data), ``discovered``, or the path of a
+    learned model's checkpoint (``models/<name>/model.pt``).
+
+    Options are the model's config keys (for the physics models: ``vehicle``, a mapping or
+    :class:`~nanosysid.vehicle.Vehicle`; ``dt``; ``substeps``; ``identified``, the path of an
+    ``identify`` result whose k_F and k_M replace the vehicle's).
+    """
+    if kind.endswith((".pt", ".ckpt")):
+        return _learned(checkpoint=kind)
+    return _kind(kind).build(**options)
+
+
+def build_from_options(options: dict[str, Any]) -> Predictor:
+    """The predictor of a ``models.<name>`` block as plain data (``kind`` plus options).
 
     ``artifact`` names the file or folder the model is made from, for DVC's dependency
-    tracking; it is not an option of the model.
+    tracking, and ``network``/``train`` only matter to training; neither is an option of the
+    predictor.
     """
-    opts = {k: v for k, v in options.items() if k not in ("kind", "artifact")}
-    return build_predictor(options["kind"], **opts)
+    opts = {k: v for k, v in options.items() if k not in ("kind", "artifact", "network", "train")}
+    return predictor(options["kind"], **opts)
+
+
+def step_cost(kind: str, predict: Predictor) -> dict[str, Any]:
+    """Parameters and FLOPs of one step of a predictor of this kind."""
+    return _kind(kind).cost(predict)
+
+
+def exportable(kind: str, predict: Predictor, name: str) -> Any:
+    """The exportable step (:class:`nanosysid.export.steps.Exportable`) of a predictor."""
+    export = _kind(kind).export
+    if export is None:
+        raise ExportError(f"model {name!r} (kind {kind!r}) has no step to export: "
+                          f"kinds with one are {', '.join(k for k, m in KINDS.items() if m.export)}")
+    return export(predict, name)

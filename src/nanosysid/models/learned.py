@@ -7,8 +7,10 @@ Inputs are normalised with statistics of the training flights, and increments ar
 in units of their training standard deviation; the statistics are buffers of the model, so a
 checkpoint is self-contained.
 
-The step map, the rollout and the initial-state handling are separate: ``init_state`` (the
-LSTM's hidden state from ``ỹ_0``), ``step`` (one sample) and ``rollout`` (H samples).
+The network is a component (:mod:`nanosysid.models.components`) injected into the one
+:class:`SequenceModel`; the step map, the rollout and the initial-state handling are separate:
+``init_state`` (a recurrent network's state from ``ỹ_0``), ``step`` (one sample) and
+``rollout`` (H samples).
 """
 
 from __future__ import annotations
@@ -26,10 +28,10 @@ from nanosysid.models.physics import PhysicsStep
 from nanosysid.rollout import as_tensor
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["to_tilde", "from_tilde", "MLP", "SequenceModel", "build_model", "save_checkpoint", "load_model",
-           "LearnedPredictor", "ARCHS"]
+__all__ = ["to_tilde", "from_tilde", "SequenceModel", "build_model", "build_network", "save_checkpoint", "load_checkpoint", "LearnedPredictor",
+           "FORMAT"]
 
-ARCHS = ("residual", "phys_res", "lstm")
+FORMAT = "nanosysid-model-2"
 
 
 def to_tilde(y: Tensor) -> Tensor:
@@ -42,48 +44,21 @@ def from_tilde(yt: Tensor) -> Tensor:
     return torch.cat((yt[..., :6], so3.quat_exp(yt[..., 6:9]), yt[..., 9:12]), dim=-1)
 
 
-class MLP(nn.Sequential):
-    """Fully connected network with tanh activations between layers."""
-
-    def __init__(self, n_in: int, hidden: list[int], n_out: int) -> None:
-        layers: list[nn.Module] = []
-        for h in hidden:
-            layers += [nn.Linear(n_in, h), nn.Tanh()]
-            n_in = h
-        layers.append(nn.Linear(n_in, n_out))
-        super().__init__(*layers)
-
-
 class SequenceModel(nn.Module):
-    """One learned model: network, normalisation and (for phys_res) the physics step.
+    """One learned model: an injected network, the normalisation, and optionally a physics base.
+
+    ``ỹ_{k+1} = base + d_std * network(features)``, where the base is ``ỹ_k`` or, with a
+    ``physics`` step, the physics model's prediction from ``ỹ_k`` (physics + residual).
 
     Args:
-        arch: ``residual``, ``phys_res`` or ``lstm``.
-        hidden: Hidden layer sizes of the feed-forward network (residual, phys_res).
-        lstm_hidden: Hidden size of the LSTM; ``init_hidden``: the hidden layer of the MLP
-            that maps ``ỹ_0`` to the LSTM's initial hidden and cell states.
-        physics: The physics step of phys_res (its vehicle holds the identified k_F, k_M).
+        network: A network of :mod:`nanosysid.models.components`.
+        physics: The physics step of the base (its vehicle holds the identified k_F, k_M).
     """
 
-    def __init__(self, arch: str, *, hidden: list[int] = (120, 120), lstm_hidden: int = 64, init_hidden: int = 32,
-                 physics: PhysicsStep | None = None) -> None:
+    def __init__(self, network: nn.Module, physics: PhysicsStep | None = None) -> None:
         super().__init__()
-        if arch not in ARCHS:
-            raise ValueError(f"unknown architecture {arch!r}; known: {', '.join(ARCHS)}")
-        self.arch = arch
+        self.network = network
         self.physics = physics
-        if arch == "phys_res" and physics is None:
-            raise ValueError("phys_res needs a physics step")
-        if arch == "lstm":
-            self.init = MLP(12, [init_hidden], 2 * lstm_hidden)
-            self.cell = nn.LSTMCell(16, lstm_hidden)
-            self.readout = nn.Linear(lstm_hidden, 12)
-        else:
-            self.net = MLP(16, list(hidden), 12)
-            if arch == "phys_res":
-                # the residual starts at zero, so the untrained model is the physics model
-                nn.init.zeros_(self.net[-1].weight)
-                nn.init.zeros_(self.net[-1].bias)
         for name, n in (("y_mean", 12), ("y_std", 12), ("u_mean", 4), ("u_std", 4), ("d_std", 12)):
             self.register_buffer(name, torch.zeros(n) if "mean" in name else torch.ones(n))
 
@@ -99,22 +74,14 @@ class SequenceModel(nn.Module):
         return torch.cat(((yt - self.y_mean) / self.y_std, (u - self.u_mean) / self.u_std), dim=-1)  # (B, 16)
 
     def init_state(self, yt0: Tensor) -> Any:
-        """Recurrent state from the initial output (LSTM: hidden and cell); None otherwise."""
-        if self.arch != "lstm":
-            return None
-        h, c = self.init((yt0 - self.y_mean) / self.y_std).chunk(2, dim=-1)
-        return (torch.tanh(h), c)
+        """The network's recurrent state from the initial output (None for feed-forward ones)."""
+        return self.network.init_state((yt0 - self.y_mean) / self.y_std)
 
     def step(self, yt: Tensor, u: Tensor, state: Any = None) -> tuple[Tensor, Any]:
         """One sample ahead: ``ỹ_k (B, 12)``, ``u_k (B, 4)`` -> ``ỹ_{k+1}`` and the new state."""
-        x = self._features(yt, u)
-        if self.arch == "lstm":
-            h, c = self.cell(x, state)
-            return yt + self.d_std * self.readout(h), (h, c)
-        base = yt
-        if self.arch == "phys_res":
-            base = to_tilde(self.physics(from_tilde(yt), u))
-        return base + self.d_std * self.net(x), None
+        d, state = self.network(self._features(yt, u), state)
+        base = yt if self.physics is None else to_tilde(self.physics(from_tilde(yt), u))
+        return base + self.d_std * d, state
 
     def rollout(self, yt0: Tensor, u: Tensor) -> Tensor:
         """``ỹ_0 (B, 12)``, ``u (B, H, 4)`` -> predictions ``(B, H, 12)`` for h = 1..H."""
@@ -126,29 +93,27 @@ class SequenceModel(nn.Module):
         return torch.stack(out, dim=1)
 
 
-def build_model(hparams: dict[str, Any]) -> SequenceModel:
-    """A model from its hyper-parameters (the ``arch`` block of a config or a checkpoint)."""
-    physics = None
-    if hparams["arch"] == "phys_res":
-        v = hparams["vehicle"]
-        vehicle = Vehicle.from_mapping(v)
-        physics = PhysicsStep(vehicle, dt=hparams.get("dt", 0.01), substeps=hparams.get("substeps", 1),
-                              angular_dynamics=False)
-    return SequenceModel(
-        hparams["arch"],
-        hidden=list(hparams.get("hidden", [120, 120])),
-        lstm_hidden=int(hparams.get("lstm_hidden", 64)),
-        init_hidden=int(hparams.get("init_hidden", 32)),
-        physics=physics,
-    )
+def _physics_spec(physics: PhysicsStep | None) -> dict[str, Any] | None:
+    if physics is None:
+        return None
+    vehicle = {k: (list(v) if isinstance(v, tuple) else v) for k, v in physics.vehicle.dynamics_kwargs().items()}
+    return {"vehicle": vehicle, "dt": physics.dt, "substeps": physics.substeps,
+            "angular_dynamics": physics.angular_dynamics}
 
 
-def save_checkpoint(model: SequenceModel, hparams: dict[str, Any], path: Path, extra: dict[str, Any] | None = None) -> None:
-    """Weights, normalisation and hyper-parameters in one file, loadable with ``weights_only=True``."""
+def save_checkpoint(model: SequenceModel, network: dict[str, Any], path: Path,
+                    extra: dict[str, Any] | None = None) -> None:
+    """Weights, normalisation, the network (its :data:`~nanosysid.models.components.NETWORKS`
+    key and constructor arguments) and the physics base in one file, loadable with
+    ``weights_only=True``.
+
+    Args:
+        network: ``{"name": key, "options": {...}}``, what :func:`load_checkpoint` rebuilds.
+    """
     from nanosysid.dataio import atomic_file
 
-    payload = {"format": "nanosysid-model-1", "hparams": hparams, "state_dict": model.state_dict(),
-               "extra": extra or {}}
+    payload = {"format": FORMAT, "network": network, "physics": _physics_spec(model.physics),
+               "state_dict": model.state_dict(), "extra": extra or {}}
     # torch names the archive's records after the file it writes to; through a buffer the
     # name is fixed, so the same weights give the same bytes whatever the (temporary) path
     buf = io.BytesIO()
@@ -157,12 +122,36 @@ def save_checkpoint(model: SequenceModel, hparams: dict[str, Any], path: Path, e
         tmp.write_bytes(buf.getvalue())
 
 
-def load_model(path: str | Path) -> tuple[SequenceModel, dict[str, Any]]:
+def build_network(name: str, options: dict[str, Any]) -> nn.Module:
+    """A network of :data:`~nanosysid.models.components.NETWORKS` by key."""
+    from nanosysid.models.components import NETWORKS
+
+    try:
+        cls = NETWORKS[name]
+    except KeyError:
+        raise KeyError(f"unknown network {name!r}; known: {', '.join(NETWORKS)}") from None
+    return cls(**options)
+
+
+def build_model(network: dict[str, Any], physics: PhysicsStep | None = None) -> SequenceModel:
+    """A model from its network spec ``{"name", "options"}`` and optional physics base."""
+    return SequenceModel(build_network(network["name"], dict(network.get("options", {}))), physics)
+
+
+def load_checkpoint(path: str | Path) -> tuple[SequenceModel, dict[str, Any]]:
     """The one loader of learned models (evaluation, export and visualisation use it)."""
+    from nanosysid.errors import DataError
+
     ckpt = torch.load(path, map_location="cpu", weights_only=True)
-    if ckpt.get("format") != "nanosysid-model-1":
-        raise ValueError(f"{path}: not a nanosysid model checkpoint")
-    model = build_model(ckpt["hparams"])
+    if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
+        raise DataError(f"{path}: not a nanosysid model checkpoint (format {FORMAT})")
+    net = ckpt["network"]
+    physics = None
+    if ckpt["physics"] is not None:
+        p = ckpt["physics"]
+        physics = PhysicsStep(Vehicle.from_mapping(p["vehicle"]), dt=p["dt"], substeps=p["substeps"],
+                              angular_dynamics=p["angular_dynamics"])
+    model = build_model(net, physics)
     model.load_state_dict(ckpt["state_dict"])
     model.eval()
     return model, ckpt

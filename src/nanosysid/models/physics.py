@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from nanosysid import dynamics, so3
+from nanosysid import dynamics
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["PhysicsStep", "naive_predict"]
@@ -45,12 +45,7 @@ class PhysicsStep(nn.Module):
         )
 
     def forward(self, y: Tensor, u: Tensor) -> Tensor:
-        h = self.dt / self.substeps
-        for _ in range(self.substeps):
-            y = dynamics.rk4_step(self._f, y, u, h)
-        # RK4 drifts off the unit sphere by O(dt^5) per step; renormalising keeps
-        # long rollouts on SO(3) without changing the rotation.
-        return torch.cat((y[..., :6], so3.quat_normalize(y[..., 6:10]), y[..., 10:]), dim=-1)
+        return dynamics.integrate(self._f, y, u, dt=self.dt, substeps=self.substeps)
 
 
 def naive_predict(y0, u):

@@ -1,4 +1,5 @@
-"""Training of the learned models: one LightningModule for all, networks injected.
+"""Training of the learned models: one LightningModule for all; the network, the optimiser and
+the scheduler are injected (the train stage builds them from the model's config).
 
 Windows of H samples are cut from the training flights (every ``stride``-th start); the model
 is rolled out over each window from its first sample and compared with every step
@@ -10,7 +11,7 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import pytorch_lightning as pl
@@ -19,9 +20,10 @@ from torch import Tensor
 from torch.utils.data import DataLoader, TensorDataset
 
 from nanosysid.benchmark import windows
-from nanosysid.config import ConfigError
 from nanosysid.dataio import Flight
+from nanosysid.errors import ConfigError
 from nanosysid.models.learned import SequenceModel, build_model, save_checkpoint, to_tilde
+from nanosysid.models.physics import PhysicsStep
 
 __all__ = ["SysIdModule", "window_tensors", "train_model"]
 
@@ -29,13 +31,21 @@ log = logging.getLogger(__name__)
 
 
 class SysIdModule(pl.LightningModule):
-    """Multi-step rollout training of any :class:`SequenceModel`."""
+    """Multi-step rollout training of any :class:`SequenceModel`.
 
-    def __init__(self, model: SequenceModel, *, lr: float = 2e-3, weight_decay: float = 0.0) -> None:
+    Args:
+        model: The model, its network injected.
+        optimizer: ``optimizer(params) -> torch.optim.Optimizer`` (a partial of the config's
+            ``optimizer``); Adam at 1e-3 if None.
+        scheduler: ``scheduler(optimizer)``, stepped on the validation loss; none if None.
+    """
+
+    def __init__(self, model: SequenceModel, *, optimizer: Callable | None = None,
+                 scheduler: Callable | None = None) -> None:
         super().__init__()
         self.model = model
-        self.lr = lr
-        self.weight_decay = weight_decay
+        self.optimizer = optimizer or (lambda params: torch.optim.Adam(params, lr=1e-3))
+        self.scheduler = scheduler
 
     def loss(self, batch: tuple[Tensor, Tensor, Tensor]) -> Tensor:
         yt0, u, target = batch  # (B, 12), (B, H, 4), (B, H, 12)
@@ -51,9 +61,10 @@ class SysIdModule(pl.LightningModule):
         self.log("val/loss", self.loss(batch), on_step=False, on_epoch=True, prog_bar=True)
 
     def configure_optimizers(self):
-        opt = torch.optim.Adam(self.model.parameters(), lr=self.lr, weight_decay=self.weight_decay)
-        sched = torch.optim.lr_scheduler.ReduceLROnPlateau(opt, factor=0.5, patience=3)
-        return {"optimizer": opt, "lr_scheduler": {"scheduler": sched, "monitor": "val/loss"}}
+        opt = self.optimizer(self.model.parameters())
+        if self.scheduler is None:
+            return opt
+        return {"optimizer": opt, "lr_scheduler": {"scheduler": self.scheduler(opt), "monitor": "val/loss"}}
 
 
 def window_tensors(flights: Sequence[Flight], horizon: int, stride: int = 1, dtype=torch.float32) -> TensorDataset:
@@ -82,57 +93,70 @@ def _statistics(flights: Sequence[Flight], model: SequenceModel) -> tuple[Tensor
 
 
 def train_model(
-    hparams: dict[str, Any],
-    train: dict[str, Any],
+    network: dict[str, Any],
     flights: Sequence[Flight],
     out: Path,
     *,
+    physics: PhysicsStep | None = None,
+    optimizer: Callable | None = None,
+    scheduler: Callable | None = None,
+    horizon: int = 50,
+    stride: int = 1,
+    batch_size: int = 512,
+    epochs: int = 80,
+    patience: int = 8,
+    seed: int = 0,
+    val_runs: Sequence[int] = (4,),
     log_dir: Path | None = None,
     accelerator: str = "auto",
+    devices: int | str = 1,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train one model and save its checkpoint to ``out``.
 
     Args:
-        hparams: Architecture (see :func:`~nanosysid.models.learned.build_model`).
-        train: ``horizon, stride, batch_size, epochs, lr, weight_decay, patience, seed,
-            val_runs``.
+        network: ``{"name": key of NETWORKS, "options": {...}}``; built after seeding, so the
+            same seed gives the same initial weights.
         flights: The training flights; those whose run is in ``val_runs`` validate.
+        physics: The physics base of a physics + residual model.
+        optimizer, scheduler: See :class:`SysIdModule`.
+        horizon, stride: Windows of ``horizon`` samples, every ``stride``-th start.
+        epochs, patience: At most ``epochs``; early stopping after ``patience`` without a
+            better validation loss.
         log_dir: Where dvclive writes the per-epoch metrics (none if None).
 
     Returns:
         A summary (epochs run, best validation loss, parameter count).
     """
-    pl.seed_everything(int(train["seed"]), workers=True)
+    pl.seed_everything(int(seed), workers=True)
     torch.use_deterministic_algorithms(True)
-    val_runs = set(train["val_runs"])
+    val_runs = set(val_runs)
     fit_f = [f for f in flights if f.run not in val_runs]
     val_f = [f for f in flights if f.run in val_runs]
     if not fit_f or not val_f:
         raise ConfigError(f"train: need flights both for fitting and for validation (val_runs {sorted(val_runs)}; "
                           f"runs present: {sorted({f.run for f in flights})})")
-    model = build_model(hparams)
+    model = build_model(network, physics)
     model.set_statistics(*_statistics(fit_f, model))
-    H, stride = int(train["horizon"]), int(train["stride"])
-    ds_fit = window_tensors(fit_f, H, stride)
-    ds_val = window_tensors(val_f, H, stride)
-    gen = torch.Generator().manual_seed(int(train["seed"]))
-    dl_fit = DataLoader(ds_fit, batch_size=int(train["batch_size"]), shuffle=True, generator=gen)
+    ds_fit = window_tensors(fit_f, int(horizon), int(stride))
+    ds_val = window_tensors(val_f, int(horizon), int(stride))
+    gen = torch.Generator().manual_seed(int(seed))
+    dl_fit = DataLoader(ds_fit, batch_size=int(batch_size), shuffle=True, generator=gen)
     dl_val = DataLoader(ds_val, batch_size=4096)
-    module = SysIdModule(model, lr=float(train["lr"]), weight_decay=float(train.get("weight_decay", 0.0)))
+    module = SysIdModule(model, optimizer=optimizer, scheduler=scheduler)
     logger = False
     if log_dir is not None:
         from dvclive.lightning import DVCLiveLogger
 
         logger = DVCLiveLogger(dir=str(log_dir), save_dvc_exp=False, dvcyaml=None, report=None)
-    stop = pl.callbacks.EarlyStopping("val/loss", patience=int(train["patience"]), mode="min")
+    stop = pl.callbacks.EarlyStopping("val/loss", patience=int(patience), mode="min")
     # the untrained model is a candidate too: phys_res starts as the physics model, and
     # training never hands back something worse on the validation flights than its start
     with torch.no_grad():
         start = float(np.mean([module.loss(b).item() for b in dl_val]))
     best = _KeepBest(start, model)
     trainer = pl.Trainer(
-        max_epochs=int(train["epochs"]), accelerator=accelerator, devices=1, deterministic=True, logger=logger,
+        max_epochs=int(epochs), accelerator=accelerator, devices=devices, deterministic=True, logger=logger,
         callbacks=[stop, best], enable_checkpointing=False, enable_progress_bar=progress,
         enable_model_summary=False, num_sanity_val_steps=0,
     )
@@ -142,8 +166,8 @@ def train_model(
     n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)
     summary = {"epochs": trainer.current_epoch, "best_val_loss": best.value, "params": n_params,
                "fit_windows": len(ds_fit), "val_windows": len(ds_val)}
-    save_checkpoint(model, hparams, out, extra=summary)
-    log.info("trained %s: %s", hparams["arch"], summary)
+    save_checkpoint(model, network, out, extra=summary)
+    log.info("trained %s: %s", network["name"], summary)
     return summary
 
 

@@ -15,7 +15,7 @@ from __future__ import annotations
 from typing import Mapping
 
 from nanosysid.dataio import Flight
-from nanosysid.sim.effects import DEFAULT_WORLD, EFFECTS, World
+from nanosysid.sim.world import DEFAULT_WORLD, EFFECTS, World
 from nanosysid.sim.oracle import Oracle
 from nanosysid.sim.simulator import SimConfig, simulate
 from nanosysid.vehicle import Vehicle

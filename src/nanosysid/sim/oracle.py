@@ -14,9 +14,9 @@ import numpy as np
 import torch
 from torch import Tensor
 
-from nanosysid import dynamics, so3
+from nanosysid import dynamics
 from nanosysid.rollout import advance_inputs, as_tensor
-from nanosysid.sim.effects import World
+from nanosysid.sim.world import World
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["Oracle"]
@@ -47,17 +47,15 @@ class Oracle:
         # rotor speeds move linearly from one sample to the next; the last one is held
         om_next = torch.cat((om[:, 1:], om[:, -1:]), dim=1)
         om_dot = (om_next - om) / self.dt
-        h = self.dt / self.substeps
         out = []
         for k in range(om.shape[1]):
-            for j in range(self.substeps):
-                om_mid = om[:, k] + om_dot[:, k] * (j + 0.5) * h
+            def f(x, w_rot, od=om_dot[:, k]):
+                force, torque = self.world.wrench(x, w_rot, od, self.vehicle)
+                return self._f(x, w_rot, force_body=force, torque_body=torque)
 
-                def f(x, w_rot, od=om_dot[:, k]):
-                    force, torque = self.world.wrench(x, w_rot, od, self.vehicle)
-                    return self._f(x, w_rot, force_body=force, torque_body=torque)
+            def om_mid(j, h, k=k):
+                return om[:, k] + om_dot[:, k] * (j + 0.5) * h
 
-                y = dynamics.rk4_step(f, y, om_mid, h)
-            y = torch.cat((y[:, :6], so3.quat_normalize(y[:, 6:10]), y[:, 10:]), dim=-1)
+            y = dynamics.integrate(f, y, om_mid, dt=self.dt, substeps=self.substeps)
             out.append(y)
         return torch.stack(out, dim=1).numpy()

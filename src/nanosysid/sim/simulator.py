@@ -23,7 +23,7 @@ from tqdm.auto import tqdm
 from nanosysid import dynamics, so3
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, OUTPUT_COLUMNS, Flight
 from nanosysid.sim.controller import ControllerState, Mellinger, MellingerGains
-from nanosysid.sim.effects import World
+from nanosysid.sim.world import World
 from nanosysid.sim.trajectories import Reference, make_reference
 from nanosysid.vehicle import Vehicle
 

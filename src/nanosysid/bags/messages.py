@@ -1,4 +1,4 @@
-"""ROS 2 bag access: the type store with the project's messages, and writer/reader helpers."""
+"""The ROS 2 message types of the bags: the type store with the project's own messages registered."""
 
 from __future__ import annotations
 
@@ -22,7 +22,7 @@ def typestore():
     store = get_typestore(Stores.ROS2_HUMBLE)
     types = {}
     for name, file in MSG_TYPES.items():
-        text = resources.files("nanosysid.recording").joinpath("msg", file).read_text()
+        text = resources.files("nanosysid.bags").joinpath("msg", file).read_text()
         types.update(get_types_from_msg(text, name))
     store.register(types)
     return store

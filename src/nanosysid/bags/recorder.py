@@ -33,8 +33,8 @@ import pandas as pd
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from scipy.spatial.transform import Rotation, Slerp
 
-from nanosysid.recording.bags import typestore
-from nanosysid.sim.effects import World
+from nanosysid.bags.messages import typestore
+from nanosysid.sim.world import World
 from nanosysid.sim.simulator import NoiseConfig, RawRecord, interp_columns, perturb_attitude, velocity_drift
 from nanosysid.vehicle import Vehicle
 

@@ -30,7 +30,7 @@ import pandas as pd
 from scipy.signal import butter, sosfiltfilt
 from scipy.spatial.transform import Rotation, Slerp
 
-from nanosysid.dataio import DataError
+from nanosysid.errors import DataError
 
 __all__ = ["SyncConfig", "sync_flight", "clock_fit", "xcorr_lag"]
 

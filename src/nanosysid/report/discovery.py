@@ -6,18 +6,15 @@ import json
 from pathlib import Path
 from typing import Any
 
-import matplotlib
+import numpy as np
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-
-from nanosysid.dataio import atomic_file  # noqa: E402
-from nanosysid.discover import CANDIDATES, CHANNELS, DiscoveryResult  # noqa: E402
-from nanosysid.discover.analysis import BANDS, REGIMES  # noqa: E402
-from nanosysid.metrics import QUANTITIES  # noqa: E402
-from nanosysid.report import results_table_md  # noqa: E402
-from nanosysid.viz.report import mae_horizon_figure  # noqa: E402
+from nanosysid.dataio import atomic_file
+from nanosysid.discover import CHANNELS, LIBRARY, DiscoveryResult
+from nanosysid.discover.analysis import BANDS, REGIMES
+from nanosysid.metrics import QUANTITIES
+from nanosysid.report.tables import results_table_md
+from nanosysid.viz.benchmark import mae_horizon_figure
+from nanosysid.viz.discovery import channel_figure, scatter_figure
 
 __all__ = ["write_report", "result_dict", "gap_closed"]
 
@@ -51,48 +48,6 @@ def result_dict(result: DiscoveryResult) -> dict[str, Any]:
     }
 
 
-def _save(fig, path: Path) -> None:
-    with atomic_file(path) as tmp:
-        fig.savefig(tmp, format="png", dpi=110)
-    plt.close(fig)
-
-
-def _channel_figure(a: dict[str, Any], path: Path) -> None:
-    fig, axes = plt.subplots(1, 2, figsize=(11, 3.6), sharey=True)
-    x = np.arange(6)
-    for ax, part in zip(axes, ("train", "test")):
-        ax.bar(x - 0.2, a[f"rms_{part}"]["before"], 0.4, color="C3", label="nominal model")
-        ax.bar(x + 0.2, a[f"rms_{part}"]["after"], 0.4, color="C2", label="with the named effects")
-        ax.set_xticks(x, CHANNELS)
-        ax.set_title(f"{'training' if part == 'train' else 'test'} flights")
-        ax.grid(True, axis="y", alpha=0.3)
-    axes[0].set_ylabel("RMS of measured − predicted\n[std. dev. of the channel's nominal residual]")
-    axes[0].legend(fontsize=8)
-    fig.tight_layout()
-    _save(fig, path)
-
-
-def _scatter_figure(scatter: dict[str, Any], path: Path) -> None:
-    n = len(scatter)
-    fig, axes = plt.subplots(1, n, figsize=(4.2 * n, 3.8), squeeze=False)
-    for ax, (name, d) in zip(axes[0], scatter.items()):
-        unit = "mN" if d["channel"].startswith("F") else "mN·m"
-        m = 1e3 * np.asarray(d["model"])
-        ax.plot(m, 1e3 * np.asarray(d["residual_others_removed"]), ".", ms=2, alpha=0.35, color="C3",
-                label="before: measured − nominal (other effects removed)")
-        ax.plot(m, 1e3 * np.asarray(d["residual_after"]), ".", ms=2, alpha=0.35, color="C2", label="after: what is left")
-        lim = np.nanmax(np.abs(m)) if len(m) else 1.0
-        ax.plot([-lim, lim], [-lim, lim], "k--", lw=1, label="the effect's prediction")
-        ax.set_xlabel(f"{name}: fitted contribution to {d['channel']} [{unit}]")
-        ax.set_ylabel(f"residual of {d['channel']} [{unit}]")
-        ax.locator_params(nbins=5)
-        ax.set_title(name)
-        ax.grid(True, alpha=0.3)
-    axes[0][0].legend(fontsize=7, markerscale=4)
-    fig.tight_layout()
-    _save(fig, path)
-
-
 def _fmt(x: float) -> str:
     return f"{x:.4g}"
 
@@ -107,9 +62,9 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
         rows["oracle"] = result.oracle
     mae_horizon_figure(rows, figs / "mae_horizon.png")
     if a:
-        _channel_figure(a, figs / "channels.png")
+        channel_figure(a, figs / "channels.png")
     if a.get("scatter"):
-        _scatter_figure(a["scatter"], figs / "effects.png")
+        scatter_figure(a["scatter"], figs / "effects.png")
     closed = gap_closed(result)
 
     L: list[str] = ["# Model-discrepancy discovery", ""]
@@ -195,7 +150,7 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
               "| effect | what it is | coefficients | explained share | held-out gain |", "|---|---|---|---|---|"]
         for f in result.found:
             coefs = "<br>".join(f"{k} = {v:.4g} ± {f.evidence['stderr'][k]:.2g}" for k, v in f.params.items())
-            L.append(f"| `{f.name}` | {CANDIDATES[f.name].description} | {coefs} | "
+            L.append(f"| `{f.name}` | {LIBRARY[f.name].description} | {coefs} | "
                      f"{100 * f.evidence['explained_share']:.1f} % | {100 * f.evidence['heldout_gain']:.1f} % |")
         L.append("")
     if a.get("scatter"):

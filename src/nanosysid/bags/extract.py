@@ -15,10 +15,10 @@ import numpy as np
 import pandas as pd
 from rosbags.highlevel import AnyReader
 
-from nanosysid.dataio import DataError
-from nanosysid.recording.bags import typestore
+from nanosysid.errors import DataError
+from nanosysid.bags.messages import typestore
 
-__all__ = ["extract_bag", "STREAM_COLUMNS", "MAX_REORDER"]
+__all__ = ["find_bags", "extract_bag", "STREAM_COLUMNS", "MAX_REORDER"]
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +62,17 @@ STREAM_COLUMNS: dict[str, list[str]] = {
 _READERS: dict[str, Callable[[Any], list[float]]] = {
     "mocap": _pose, "odom": _odom, "imu": _imu, "status": _status, "setpoint": _setpoint,
 }
+
+
+def find_bags(folder: Path) -> list[Path]:
+    """ROS 2 bags in a folder: sub-folders holding a ``metadata.yaml``, sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"{folder}: no such folder of bags")
+    bags = sorted(p.parent for p in folder.glob("*/metadata.yaml"))
+    if not bags:
+        raise DataError(f"{folder}: no ROS 2 bag (a folder with metadata.yaml) found")
+    return bags
 
 
 def extract_bag(bag: Path, topics: Mapping[str, Mapping[str, Any]]) -> dict[str, pd.DataFrame]:

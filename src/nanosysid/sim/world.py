@@ -1,13 +1,13 @@
-"""Physical effects that real flight has and the nominal physics model lacks.
+"""Nature: the effects of the simulated world that the nominal physics model lacks.
 
-Each effect has a dimensionless strength: 1.0 is a realistic magnitude for the CF2.1
+This is what makes the data, known only to the simulator and the oracle. Discovery never
+imports it: its hypotheses are the separate library of :mod:`nanosysid.effects` (knowledge),
+whose entries have other names and may have other forms. Each effect has a dimensionless strength: 1.0 is a realistic magnitude for the CF2.1
 Brushless (numbers and sources in the docstrings), 0 switches it off. Effects that act on the
 rigid body return an extra body-frame force and torque; ``telemetry_delay`` acts on the
 recorded rotor speeds instead. Every function is batched over leading dimensions.
 
-Rotor spin directions, needed by the torque effects: M1 and M3 turn counter-clockwise seen
-from above (angular velocity along +z of the body), M2 and M4 clockwise, consistent with the
-signs of the yaw row of the paper's mixing matrix.
+Rotor spin directions are :data:`nanosysid.dynamics.SPIN`.
 """
 
 from __future__ import annotations
@@ -22,9 +22,7 @@ from torch import Tensor
 from nanosysid import dynamics, so3
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["EFFECTS", "World", "SPIN", "DEFAULT_WORLD"]
-
-SPIN = (1.0, -1.0, 1.0, -1.0)  # rotor angular velocity direction along body z
+__all__ = ["EFFECTS", "World", "DEFAULT_WORLD"]
 
 EFFECTS: dict[str, str] = {
     "rotor_drag": "blade flapping and induced drag: F_B = -(sum_i Omega_i) K v_B, K = diag(1.8e-6, 1.8e-6, 1.0e-6) kg/rad",
@@ -81,7 +79,7 @@ class World:
                 "com_lever": torch.stack((-r[1], r[0], torch.zeros_like(r[0]))),
                 # extra wrench of rotors with k_f (1 + d_i): linear in Omega^2, (4 wrench, 4 rotors)
                 "asym": M * (t(MOTOR_ASYMMETRY) * self.s("motor_asymmetry")),
-                "spin_jr": t(SPIN) * ROTOR_INERTIA * self.s("rotor_inertia"),
+                "spin_jr": t(dynamics.SPIN) * ROTOR_INERTIA * self.s("rotor_inertia"),
             }
         return cache[key]
 

@@ -10,7 +10,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from nanosysid.benchmark import Scores
-from nanosysid.dataio import DataError
+from nanosysid.errors import DataError
 from nanosysid.metrics import QUANTITIES, UNITS
 
 __all__ = ["results_table_md", "results_table_tex", "cost_table_md", "cost_table_tex", "load_scores",

@@ -1,0 +1,26 @@
+"""The errors a user's mistake or a missing tool raise: each ends a stage with one message
+(naming the file, the key or the field and the problem) and exit code 2, never a traceback."""
+
+from __future__ import annotations
+
+__all__ = ["UserError", "DataError", "ConfigError", "ExportError", "ToolchainError"]
+
+
+class UserError(ValueError):
+    """Base of the errors a stage reports as one message."""
+
+
+class DataError(UserError):
+    """A data file that does not meet its schema; the message names file, field and row."""
+
+
+class ConfigError(UserError):
+    """A config file or an override that cannot be applied."""
+
+
+class ExportError(UserError):
+    """A model cannot be exported, or its export does not compute what PyTorch computes."""
+
+
+class ToolchainError(UserError):
+    """A tool the microcontroller stages need is missing."""

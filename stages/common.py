@@ -1,0 +1,93 @@
+"""What every stage script shares: the command line, the config, and reading the config's
+blocks into the library's plain arguments.
+
+Every stage runs as ``python -m stages.<name> [NAME] [key=value ...]``: an optional
+positional name (the ``foreach`` item, e.g. the model) and Hydra-style overrides applied on
+top of ``params.yaml``. A user's mistake (:class:`nanosysid.errors.UserError`) ends the stage
+with one message and exit code 2.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+from omegaconf import DictConfig, OmegaConf
+
+from nanosysid.config import load_params
+from nanosysid.dataio import Flight, atomic_file
+from nanosysid.errors import ConfigError, UserError
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["run_stage", "plain", "vehicle_of", "model_options", "pick_flight", "write_json"]
+
+log = logging.getLogger("nanosysid")
+
+
+def run_stage(
+    main: Callable[..., Any],
+    *,
+    description: str,
+    name_arg: str | None = None,
+    argv: Sequence[str] | None = None,
+) -> int:
+    """Parse the command line, load the config and call ``main(cfg)`` or ``main(cfg, name)``."""
+    parser = argparse.ArgumentParser(description=description)
+    if name_arg:
+        parser.add_argument(name_arg)
+    parser.add_argument("overrides", nargs="*", help="Hydra-style overrides, e.g. eval.horizon=20")
+    parser.add_argument("--params", default=None, help="params file (default: params.yaml)")
+    args = parser.parse_intermixed_args(argv)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        kw = {"path": args.params} if args.params else {}
+        cfg: DictConfig = load_params(args.overrides, **kw)
+        if name_arg:
+            main(cfg, getattr(args, name_arg))
+        else:
+            main(cfg)
+    except UserError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    return 0
+
+
+def plain(node: Any) -> Any:
+    """A config node as plain Python data (dicts, lists, scalars), interpolations resolved."""
+    return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) or OmegaConf.is_list(node) \
+        else node
+
+
+def vehicle_of(cfg: DictConfig) -> Vehicle:
+    """The nominal vehicle of ``conf/vehicle``."""
+    try:
+        return Vehicle.from_mapping(plain(cfg.vehicle))
+    except (KeyError, TypeError, ValueError) as e:
+        raise ConfigError(f"vehicle: {e}") from None
+
+
+def model_options(cfg: DictConfig, name: str) -> dict[str, Any]:
+    """The ``models.<name>`` block as plain data."""
+    if name not in cfg.models:
+        raise ConfigError(f"models.{name}: no such model in the config (known: {', '.join(cfg.models)})")
+    return plain(cfg.models[name])
+
+
+def pick_flight(flights: list[Flight], name: str | None, key: str) -> Flight:
+    """The flight called ``name`` (a prefix of its file name will do), the first one when None."""
+    if name is None:
+        return flights[0]
+    hits = [f for f in flights if f.name == name or f.name.startswith(name)]
+    if not hits:
+        raise ConfigError(f"{key}: no test flight named {name!r} (there are: {', '.join(f.name for f in flights)})")
+    return hits[0]
+
+
+def write_json(path: str | Path, payload: Any) -> None:
+    """``payload`` as indented JSON, written atomically."""
+    with atomic_file(Path(path)) as tmp:
+        tmp.write_text(json.dumps(payload, indent=1) + "\n")
