@@ -49,7 +49,7 @@ repro: params toolchain
 	$(BIN)/python -m nanosysid.report.readme
 
 bench: $(STAMP)
-	@for f in benchmarks/*.py; do echo "== $$f"; $(BIN)/python $$f || exit 1; done
+	@for f in benchmarks/*.py; do echo "== $$f"; PYTHONPATH=$(CURDIR) $(BIN)/python $$f || exit 1; done
 
 clean-venv:
 	rm -rf $(VENV)

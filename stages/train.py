@@ -12,7 +12,8 @@ from nanosysid.errors import ConfigError
 from nanosysid.identify import identified_vehicle
 from nanosysid.models.physics import PhysicsStep
 from nanosysid.models.training import train_model
-from stages.common import model_options, plain, run_stage, vehicle_of
+from nanosysid.vehicle import Vehicle
+from stages.common import model_options, plain, run_stage
 
 
 def network_spec(m: dict[str, Any]) -> dict[str, Any]:
@@ -21,12 +22,12 @@ def network_spec(m: dict[str, Any]) -> dict[str, Any]:
     return {"name": net.pop("name"), "options": net}
 
 
-def physics_base(cfg: DictConfig, m: dict[str, Any]) -> PhysicsStep | None:
+def physics_base(m: dict[str, Any]) -> PhysicsStep | None:
     """The physics step of a ``physics`` block (physics + residual), k_F and k_M identified."""
     p = m.get("physics")
     if p is None:
         return None
-    v = identified_vehicle(vehicle_of(cfg), p.get("identified"))
+    v = identified_vehicle(Vehicle.from_mapping(p["vehicle"]), p.get("identified"))
     return PhysicsStep(v, dt=float(p["dt"]), substeps=int(p["substeps"]), angular_dynamics=False)
 
 
@@ -38,7 +39,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     bench = benchmark.load(cfg.paths.split, horizon=int(t.horizon))
     log_dir = Path(cfg.paths.train_logs) / name
     summary = train_model(
-        network_spec(m), bench.train, Path(m["checkpoint"]), physics=physics_base(cfg, m),
+        network_spec(m), bench.train, Path(m["checkpoint"]), physics=physics_base(m),
         optimizer=instantiate(t.optimizer), scheduler=instantiate(t.scheduler) if t.scheduler else None,
         horizon=int(t.horizon), stride=int(t.stride), batch_size=int(t.batch_size), epochs=int(t.epochs),
         patience=int(t.patience), seed=int(t.seed), val_runs=plain(t.val_runs), log_dir=log_dir,

@@ -1,8 +1,11 @@
 """Config: params.yaml is the composition of conf/, and every config group composes."""
 
+import re
+import shutil
 from pathlib import Path
 
 import pytest
+import torch
 import yaml
 
 import dataclasses
@@ -26,7 +29,7 @@ def test_committed_params_yaml_is_the_composition_of_conf():
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "model").glob("*.yaml")))
 def test_every_model_config_composes_and_predicts(name, tmp_path):
     from nanosysid.identify import Fit, save_params
-    from stages.train import network_spec
+    from stages.train import network_spec, physics_base
 
     cfg = yaml.safe_load(config.compose_text([f"+model@models.probe={name}"], conf_dir=ROOT / "conf"))
     m = cfg["models"]["probe"]
@@ -39,7 +42,7 @@ def test_every_model_config_composes_and_predicts(name, tmp_path):
             block["identified"] = str(tmp_path / "params.json")
     if m["kind"] == "learned":
         m["checkpoint"] = str(tmp_path / "model.pt")
-        save_checkpoint(build_model(network_spec(m)), network_spec(m), tmp_path / "model.pt")
+        save_checkpoint(build_model(network_spec(m), physics_base(m)), network_spec(m), tmp_path / "model.pt")
     if m["kind"] == "discovered":
         from nanosysid.discover.model import save_discovered
 
@@ -72,6 +75,14 @@ def test_dataclass_defaults_are_the_config_values():
             assert getattr(sim, f.name) == flight[f.name], f.name
     assert dataclasses.asdict(NoiseConfig()) == flight["noise"]
     assert flight["gains"] == {} and MellingerGains.from_mapping({}) == MellingerGains()
+    from nanosysid.bags.filtering import FilterConfig
+    from nanosysid.bags.recorder import RecorderConfig
+    from nanosysid.bags.sync import SyncConfig
+
+    for cls, values in ((RecorderConfig, cfg["sim"]["recorder"]), (SyncConfig, cfg["recording"]["sync"]),
+                        (FilterConfig, cfg["recording"]["filter"])):
+        defaults = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(cls()).items()}
+        assert defaults == values, cls.__name__
     # the trajectories of the default SimConfig are the configured ones
     from nanosysid.sim.simulator import _trajectory_options
     from nanosysid.sim.trajectories import make_reference
@@ -110,3 +121,50 @@ def test_overrides_on_params(tmp_path):
         config.load_params(["no_such_key=1"], path=ROOT / "params.yaml")
     with pytest.raises(config.ConfigError, match="not found"):
         config.load_params(path=tmp_path / "params.yaml")
+
+
+def readme_blocks(section: str) -> list[str]:
+    """The code blocks of a README section, in order."""
+    text = (ROOT / "README.md").read_text()
+    start = text.index(section)
+    end = text.index("\n## ", start + 1)
+    return re.findall(r"```\w*\n(.*?)```", text[start:end], flags=re.S)
+
+
+def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeypatch):
+    """The README's GRU: its component, its config file and the config's list of models are
+    all it takes to train it, score it and check its checkpoint."""
+    import nanosysid.models.components as components
+    from nanosysid.dataio import write_flight_csv
+    from stages import evaluate, train
+
+    component, model_yaml, config_lines = readme_blocks("### Adding a model")
+    (tmp_path / "networks").mkdir()
+    (tmp_path / "networks" / "gru.py").write_text(component)
+    monkeypatch.setattr(components, "__path__", [*components.__path__, str(tmp_path / "networks")])
+    conf = tmp_path / "conf"
+    shutil.copytree(ROOT / "conf", conf)
+    (conf / "model" / "gru.yaml").write_text(model_yaml)
+    defaults_line, learned_line = [line for line in config_lines.splitlines() if line.strip()]
+    text = (conf / "config.yaml").read_text()
+    text = text.replace("  - _self_\n", f"{defaults_line}\n  - _self_\n", 1)
+    text = re.sub(r"^learned: .*$", learned_line, text, flags=re.M)
+    (conf / "config.yaml").write_text(text)
+    params = tmp_path / "params.yaml"
+    config.compose([], out=params, conf_dir=conf)
+
+    split = tmp_path / "split"
+    for name, part in (("chirp_x_run1", "train"), ("chirp_x_run4", "train"), ("melon_x_run1", "test")):
+        write_flight_csv(synthetic.synthetic_flights([name], 300, seed=5)[0], split / part / f"{name}.csv")
+    overrides = [f"paths.split={split}", f"paths.train_logs={tmp_path / 'logs'}", f"paths.eval={tmp_path / 'eval'}",
+                 f"models.gru.checkpoint={tmp_path / 'gru.pt'}", "models.gru.train.epochs=1",
+                 "models.gru.train.stride=20", "eval.horizon=20", "models.gru.train.horizon=20"]
+    cfg = config.load_params(overrides, path=params)
+    assert "gru" in cfg.learned and cfg.models.gru.train.optimizer.lr == 3.0e-3
+    assert cfg.models.gru.train.batch_size == cfg.models.residual.train.batch_size  # the shared settings
+    summary = train.main(cfg, "gru")
+    assert summary["epochs"] == 1
+    scores = evaluate.main(cfg, "gru")
+    assert scores.n_windows == 300 - 20 and all(np.isfinite(v) for v in scores.simerr.values())
+    raw = torch.load(tmp_path / "gru.pt", weights_only=True)
+    assert raw["network"] == {"name": "gru", "options": {"hidden": 48}}

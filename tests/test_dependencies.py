@@ -3,7 +3,9 @@ never serves a result computed by other code; and discovery never imports the si
 
 Imports are read from the source (``ast``), lazy imports inside functions included, and
 followed through the project's own modules (``nanosysid`` and ``stages``); importing a
-submodule runs its packages' ``__init__`` too. ``python tests/test_dependencies.py`` prints
+submodule runs its packages' ``__init__`` too, and a package that imports its modules by
+name (``importlib.import_module(f"{__name__}.{name}")``, the networks) counts as importing
+all of them. ``python tests/test_dependencies.py`` prints
 each stage's modules, collapsed to folders where a whole package is imported.
 """
 
@@ -55,6 +57,10 @@ def direct_imports(path: Path) -> frozenset[str]:
         for m in (*_parents(n), n):
             if module_file(m):
                 out.add(m)
+    if path.name == "__init__.py" and "importlib.import_module(f\"{__name__}." in path.read_text():
+        # a package that loads its modules by name (the networks) depends on all of them
+        package = ".".join(path.relative_to(SRC if SRC in path.parents else ROOT).parent.parts)
+        out.update(f"{package}.{f.stem}" for f in path.parent.glob("*.py") if f.stem != "__init__")
     return frozenset(out)
 
 

@@ -16,7 +16,7 @@ import functools
 import numpy as np
 import torch
 
-from nanosysid import dynamics, so3
+from nanosysid import dynamics
 from nanosysid.dataio import Flight
 from nanosysid.vehicle import Vehicle
 
@@ -72,12 +72,9 @@ def synthetic_flights(
     x[:, 9] = 1.0
     u_t = torch.from_numpy(u)
     ys = torch.empty(F, T, 13, dtype=torch.float64)
-    h = dt / substeps
     for k in range(T):
         ys[:, k] = x
-        for _ in range(substeps):
-            x = dynamics.rk4_step(f, x, u_t[:, k], h)
-        x[:, 6:10] = so3.quat_normalize(x[:, 6:10])
+        x = dynamics.integrate(f, x, u_t[:, k], dt=dt, substeps=substeps)
     y = ys.numpy()
     if noise > 0:
         y = y + rng.normal(scale=noise, size=y.shape)

@@ -285,7 +285,7 @@ def _feedforward_source(name: str, model) -> CModel:
     return CModel(name, _header(name, 12, 0), "\n".join(parts), ny=12, nstate=0, flops=flops, notes=notes)
 
 
-# the C generator of each network of nanosysid.models.components.NETWORKS that has one
+# the C generator of each network of nanosysid.models.components that has one
 NETWORK_SOURCES = {"mlp": _feedforward_source, "lstm": _recurrent_source}
 
 

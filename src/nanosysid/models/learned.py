@@ -103,8 +103,8 @@ def _physics_spec(physics: PhysicsStep | None) -> dict[str, Any] | None:
 
 def save_checkpoint(model: SequenceModel, network: dict[str, Any], path: Path,
                     extra: dict[str, Any] | None = None) -> None:
-    """Weights, normalisation, the network (its :data:`~nanosysid.models.components.NETWORKS`
-    key and constructor arguments) and the physics base in one file, loadable with
+    """Weights, normalisation, the network (its :mod:`~nanosysid.models.components` key and
+    constructor arguments) and the physics base in one file, loadable with
     ``weights_only=True``.
 
     Args:
@@ -123,14 +123,18 @@ def save_checkpoint(model: SequenceModel, network: dict[str, Any], path: Path,
 
 
 def build_network(name: str, options: dict[str, Any]) -> nn.Module:
-    """A network of :data:`~nanosysid.models.components.NETWORKS` by key."""
-    from nanosysid.models.components import NETWORKS
+    """A network of :mod:`nanosysid.models.components` by key, with its constructor's arguments."""
+    from nanosysid.errors import ConfigError
+    from nanosysid.models.components import network_class
 
     try:
-        cls = NETWORKS[name]
-    except KeyError:
-        raise KeyError(f"unknown network {name!r}; known: {', '.join(NETWORKS)}") from None
-    return cls(**options)
+        cls = network_class(name)
+    except KeyError as e:
+        raise ConfigError(e.args[0]) from None
+    try:
+        return cls(**options)
+    except TypeError as e:
+        raise ConfigError(f"network {name!r}: {e}") from None
 
 
 def build_model(network: dict[str, Any], physics: PhysicsStep | None = None) -> SequenceModel:

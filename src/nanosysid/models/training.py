@@ -115,8 +115,9 @@ def train_model(
     """Train one model and save its checkpoint to ``out``.
 
     Args:
-        network: ``{"name": key of NETWORKS, "options": {...}}``; built after seeding, so the
-            same seed gives the same initial weights.
+        network: ``{"name": key, "options": {...}}`` of a network of
+            :mod:`~nanosysid.models.components`; built after seeding, so the same seed gives
+            the same initial weights.
         flights: The training flights; those whose run is in ``val_runs`` validate.
         physics: The physics base of a physics + residual model.
         optimizer, scheduler: See :class:`SysIdModule`.

@@ -175,8 +175,7 @@ def simulate_raw(
             cmd, cstate = ctrl(x[:, :13], p_ref[:, j], v_ref[:, j], a_ref[:, j], cstate)
         rec[:, k, :17] = x
         rec[:, k, 17:] = cmd
-        x = dynamics.rk4_step(deriv, x, cmd, dt)
-        x[:, 6:10] = so3.quat_normalize(x[:, 6:10])
+        x = dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, normalise=_normalise_in_place)
         if k % 1000 == 999:
             bar.update(1000)
     bar.update(n_steps - bar.n)
@@ -206,6 +205,12 @@ def simulate_raw(
         durations=[r.duration for r in refs],
         rngs=rngs,
     )
+
+
+def _normalise_in_place(x: torch.Tensor) -> torch.Tensor:
+    # the 1 kHz loop is bound by per-call overhead: one in-place op instead of a concatenation
+    x[:, 6:10] = so3.quat_normalize(x[:, 6:10])
+    return x
 
 
 def simulate(

@@ -7,28 +7,40 @@ output and the 4 rotor speeds), and its recurrent state to the normalised increm
     state = net.init_state(y0)        # y0 (B, 12), normalised; None for feed-forward networks
     d, state = net(x, state)
 
-A checkpoint names its network by the key of :data:`NETWORKS` with its constructor's
-arguments, so loading one never runs code from the file.
+A network is a module of this package that names its class ``NETWORK``; its key is the
+module's name (``mlp``, ``lstm``), which a model's config (``network.name``) and its
+checkpoint use. A new network is one new file here: nothing to register. A checkpoint
+names its network by that key with its constructor's arguments, so loading one imports
+only modules of this package and never runs code from the file.
 """
 
 from __future__ import annotations
 
+import importlib
+import re
+
 from torch import nn
 
-from nanosysid.models.components.lstm import LSTMNet
-from nanosysid.models.components.mlp import MLPNet
+__all__ = ["network_class", "network_name"]
 
-__all__ = ["NETWORKS", "network_name"]
 
-NETWORKS: dict[str, type[nn.Module]] = {
-    "mlp": MLPNet,
-    "lstm": LSTMNet,
-}
+def network_class(name: str) -> type[nn.Module]:
+    """The ``NETWORK`` class of the module ``name`` of this package."""
+    if not re.fullmatch(r"[a-z][a-z0-9_]*", str(name)):
+        raise KeyError(f"network name {name!r}: expected the name of a module of {__name__}")
+    try:
+        module = importlib.import_module(f"{__name__}.{name}")
+    except ModuleNotFoundError:
+        raise KeyError(f"unknown network {name!r}: no module {__name__}.{name}") from None
+    cls = getattr(module, "NETWORK", None)
+    if cls is None:
+        raise KeyError(f"{__name__}.{name} defines no NETWORK class")
+    return cls
 
 
 def network_name(net: nn.Module) -> str:
-    """The key of a network's class in :data:`NETWORKS`."""
-    for name, cls in NETWORKS.items():
-        if type(net) is cls:
-            return name
-    raise KeyError(f"{type(net).__name__} is not a registered network; add it to NETWORKS")
+    """The key of a network: the name of the module that defines its class."""
+    module = type(net).__module__
+    if not module.startswith(f"{__name__}."):
+        raise KeyError(f"{type(net).__name__} is not a network of {__name__}")
+    return module.rsplit(".", 1)[1]

@@ -36,3 +36,5 @@ class LSTMNet(nn.Module):
     def forward(self, x: Tensor, state: tuple[Tensor, Tensor]) -> tuple[Tensor, tuple[Tensor, Tensor]]:
         h, c = self.cell(x, state)
         return self.readout(h), (h, c)
+
+NETWORK = LSTMNet

@@ -50,3 +50,5 @@ class MLPNet(nn.Module):
 
     def forward(self, x: Tensor, state: Any = None) -> tuple[Tensor, Any]:
         return self.mlp(x), None
+
+NETWORK = MLPNet
