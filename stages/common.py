@@ -58,8 +58,7 @@ def run_stage(
 
 def plain(node: Any) -> Any:
     """A config node as plain Python data (dicts, lists, scalars), interpolations resolved."""
-    return OmegaConf.to_container(node, resolve=True) if isinstance(node, DictConfig) or OmegaConf.is_list(node) \
-        else node
+    return OmegaConf.to_container(node, resolve=True) if OmegaConf.is_config(node) else node
 
 
 def vehicle_of(cfg: DictConfig) -> Vehicle:

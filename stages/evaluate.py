@@ -39,10 +39,10 @@ def main(cfg: DictConfig, name: str) -> benchmark.Scores:
     table_h = [h for h in cfg.eval.table_horizons if h <= horizon]
     full = {"model": name, **scores.to_dict()}
     with atomic_file(out / "scores.json") as tmp:
-        tmp.write_text(json.dumps(full, indent=1) + "\n")
+        tmp.write_text(json.dumps(full, indent=1, allow_nan=False) + "\n")
     with atomic_file(out / "metrics.json") as tmp:
         cost = step_cost(options["kind"], predict)
-        tmp.write_text(json.dumps(metrics_payload(scores, table_h, cost), indent=1) + "\n")
+        tmp.write_text(json.dumps(metrics_payload(scores, table_h, cost), indent=1, allow_nan=False) + "\n")
     with atomic_file(out / "table.md") as tmp:
         tmp.write_text(results_table_md({name: scores}, table_h))
     log.info("evaluate %s: %d windows, SimErr %s", name, scores.n_windows,

@@ -1,12 +1,14 @@
 """Evaluation protocol: windows, metric known answers, the API, the built-in models."""
 
+import re
+
 import numpy as np
 import pytest
 import torch
 
 from nanosysid import benchmark, models, so3, synthetic
 from nanosysid.dataio import Flight
-from nanosysid.errors import ConfigError
+from nanosysid.errors import ConfigError, PredictionError
 
 
 def still_flight(name, T):
@@ -90,7 +92,7 @@ def test_evaluate_batches_give_the_same_answer_and_torch_output_is_accepted():
 
 
 def test_predictor_with_wrong_shape_is_rejected():
-    with pytest.raises(ValueError, match="expected"):
+    with pytest.raises(PredictionError, match=r"predictor returned shape \(55, 13\) on flight melon_a_run1"):
         benchmark.evaluate(lambda y0, u: y0, [still_flight("melon_a_run1", 60)], horizon=5)
 
 
@@ -117,3 +119,53 @@ def test_scores_round_trip_through_dict():
     s = benchmark.evaluate(models.predictor("physics"), flights, horizon=10)
     back = benchmark.Scores.from_dict(s.to_dict())
     assert back.simerr == s.simerr and list(back.per_flight) == ["melon_s_run1"]
+
+
+def naive_with(change):
+    """The naive predictor with ``change(pred)`` applied to its output."""
+    def predict(y0, u):
+        pred = np.repeat(np.asarray(y0)[:, None, :], u.shape[1], axis=1)
+        change(pred)
+        return pred
+    return predict
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda p: p.__setitem__((0, 2, 1), np.nan), "the prediction is nan at window 0, step 3, output 1"),
+    (lambda p: p.__setitem__((1, 0, 11), np.inf), "the prediction is inf at window 1, step 1, output 11"),
+    # a zero quaternion would score a rotation error of 0 against any truth
+    (lambda p: p.__setitem__((slice(None), slice(None), slice(6, 10)), 0.0), "has norm 0"),
+    (lambda p: p.__setitem__((slice(None), slice(None), slice(6, 10)), 0.6), "has norm 1.2;"),
+])
+def test_unscorable_predictions_are_refused(change, problem):
+    flight = still_flight("melon_a_run1", 60)
+    with pytest.raises(PredictionError, match=re.escape(problem)):
+        benchmark.evaluate(naive_with(change), [flight], horizon=5)
+    y = np.repeat(flight.y[None, :5], 3, axis=0)
+    pred = y.copy()
+    change(pred)
+    with pytest.raises(PredictionError):
+        benchmark.score(y, pred)
+
+
+@pytest.mark.parametrize("key, value", [("horizon", 0), ("horizon", -5), ("horizon", 2.5), ("horizon", True),
+                                        ("batch_size", 0), ("batch_size", -1), ("batch_size", "8")])
+def test_protocol_settings_must_be_whole_numbers_of_at_least_one(key, value):
+    flight = still_flight("melon_a_run1", 60)
+    with pytest.raises(ConfigError, match=f"{key} must be a whole number >= 1, got {re.escape(repr(value))}"):
+        benchmark.evaluate(models.predictor("naive"), [flight], **{key: value})
+
+
+def test_a_predictor_cannot_change_the_flight_it_is_scored_on():
+    flight = still_flight("melon_a_run1", 60)
+    before = flight.y.copy()
+
+    def vandal(y0, u):
+        try:
+            y0[:] = 0.0  # a predictor that writes to its input
+        except ValueError:
+            pass
+        return np.repeat(np.asarray(before[:len(y0)])[:, None, :], u.shape[1], axis=1)
+
+    benchmark.evaluate(vandal, [flight], horizon=5)
+    assert np.array_equal(flight.y, before)

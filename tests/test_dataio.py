@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from nanosysid import benchmark, synthetic
-from nanosysid.dataio import atomic_dir, read_flight_csv, write_flight_csv
+from nanosysid.dataio import atomic_dir, atomic_file, read_flight_csv, write_flight_csv
 from nanosysid.errors import DataError
 
 
@@ -120,3 +120,28 @@ def test_atomic_dir_keeps_old_contents_on_failure(tmp_path):
             raise RuntimeError("stage failed")
     assert os.listdir(out) == ["keep.txt"]
     assert os.listdir(tmp_path) == ["out"]  # no temporary left behind
+
+
+def test_written_files_and_folders_get_the_users_umask(tmp_path):
+    old = os.umask(0o022)
+    try:
+        with atomic_file(tmp_path / "a.txt") as tmp:
+            tmp.write_text("x")
+        with atomic_dir(tmp_path / "d") as tmp:
+            (tmp / "f").write_text("y")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a.txt").stat().st_mode & 0o777 == 0o644
+    assert (tmp_path / "d").stat().st_mode & 0o777 == 0o755
+
+
+def test_leftovers_of_a_killed_write_are_removed_by_the_next(tmp_path):
+    (tmp_path / ".out.abc123.tmp").mkdir()  # what a killed atomic_dir leaves
+    (tmp_path / ".out.abc123.tmp" / "half.csv").write_text("1,2\n")
+    (tmp_path / ".m.json.xyz.tmp").write_text("{")  # and a killed atomic_file
+    (tmp_path / ".notes.txt").write_text("not ours")
+    with atomic_dir(tmp_path / "out") as tmp:
+        (tmp / "f").write_text("y")
+    with atomic_file(tmp_path / "m.json") as tmp:
+        tmp.write_text("{}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".notes.txt", "m.json", "out"]

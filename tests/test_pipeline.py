@@ -48,6 +48,8 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"identify.out_dir={root / 'physics'}",
         f"models.physics.identified={root / 'physics' / 'params.json'}",
         f"models.physics_full.identified={root / 'physics' / 'params.json'}",
+        f"models.phys_res.physics.identified={root / 'physics' / 'params.json'}",
+        f"discover.identified={root / 'physics' / 'params.json'}",
         f"paths.train_logs={root / 'train'}",
         f"report.markdown={root / 'report' / 'benchmark.md'}",
         f"report.latex={root / 'report' / 'benchmark.tex'}",
@@ -323,8 +325,8 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     assert "Stage 'evaluate@physics' is cached - skipping run" in out
     assert "Running stage" not in out
     # a learned model: retrains and re-evaluates that model alone, and comes back from the cache
-    out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.hidden=48")
+    out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.network.hidden=48")
     assert "Running stage 'train@lstm'" in out and "Running stage 'evaluate@lstm'" in out
     assert out.count("Running stage") == 6, out  # its export, MCU run, the report and recordings
-    out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.hidden=62")
+    out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.network.hidden=62")
     assert "Stage 'train@lstm' is cached - skipping run" in out and "Running stage" not in out

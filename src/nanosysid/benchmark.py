@@ -24,11 +24,14 @@ import numpy as np
 
 from nanosysid import metrics
 from nanosysid.dataio import Flight, read_flight_csv
-from nanosysid.errors import DataError
+from nanosysid.errors import ConfigError, DataError, PredictionError
 
-__all__ = ["Benchmark", "DataError", "Flight", "Scores", "evaluate", "load", "model", "predictions", "score", "windows"]
+__all__ = ["Benchmark", "Flight", "Scores", "evaluate", "load", "predictions", "score", "windows", "check_predictions",
+           "QUAT_NORM_TOLERANCE"]
 
 Predictor = Callable[[Any, Any], Any]
+
+QUAT_NORM_TOLERANCE = 0.01  # a predicted quaternion further than this from unit norm is refused
 
 
 @dataclass
@@ -132,17 +135,49 @@ def _to_numpy(a) -> np.ndarray:
     return np.asarray(a, dtype=np.float64)
 
 
+def _count(value, name: str) -> int:
+    """A positive whole number of a protocol setting (``horizon``, ``batch_size``)."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 1:
+        raise ConfigError(f"{name} must be a whole number >= 1, got {value!r}")
+    return int(value)
+
+
+def _read_only(a: np.ndarray) -> np.ndarray:
+    # a predictor gets its own copy: writing to it cannot change the flight or the targets
+    a = np.array(a, dtype=np.float64)
+    a.flags.writeable = False
+    return a
+
+
+def check_predictions(pred: np.ndarray, where: str) -> None:
+    """Refuse what cannot be scored: non-finite values, and quaternions whose norm is far from 1
+    (the geodesic angle of a zero quaternion would read as no error at all)."""
+    bad = ~np.isfinite(pred)
+    if bad.any():
+        i, h, c = np.argwhere(bad)[0]
+        raise PredictionError(f"{where}: the prediction is {pred[i, h, c]} at window {i}, step {h + 1}, "
+                              f"output {c}; every predicted value must be finite")
+    norm = np.linalg.norm(pred[..., 6:10], axis=-1)
+    off = np.abs(norm - 1.0) > QUAT_NORM_TOLERANCE
+    if off.any():
+        i, h = np.argwhere(off)[0]
+        raise PredictionError(f"{where}: the predicted quaternion at window {i}, step {h + 1} has norm "
+                              f"{norm[i, h]:.4g}; a rotation needs a unit quaternion (within {QUAT_NORM_TOLERANCE:g})")
+
+
 def _predicted_batches(predict: Predictor, y0: np.ndarray, u: np.ndarray, batch_size: int, name: str):
-    """``(slice, prediction)`` over batches of windows, with the predictor's shape checked."""
+    """``(slice, prediction)`` over batches of windows, the predictions checked; the predictor
+    gets read-only copies of the windows."""
     n, horizon = u.shape[0], u.shape[1]
     for s in range(0, n, batch_size):
         b = slice(s, min(s + batch_size, n))
-        pred = _to_numpy(predict(y0[b], u[b]))
+        pred = _to_numpy(predict(_read_only(y0[b]), _read_only(u[b])))
         if pred.shape != (b.stop - b.start, horizon, 13):
-            raise ValueError(
+            raise PredictionError(
                 f"predictor returned shape {pred.shape} on flight {name}; "
                 f"expected {(b.stop - b.start, horizon, 13)}"
             )
+        check_predictions(pred, f"flight {name}")
         yield b, pred
 
 
@@ -161,6 +196,7 @@ def predictions(predict: Predictor, flight: Flight, *, horizon: int = 50, batch_
     """The predictor's open-loop rollouts on a flight, ``(N, H, 13)``: row ``i`` starts at
     sample ``starts[i]`` (every admissible start, ``0..T-H-1``, by default) and holds the
     predictions of samples ``starts[i] + 1 .. starts[i] + H``."""
+    horizon, batch_size = _count(horizon, "horizon"), _count(batch_size, "batch_size")
     y0, u, _ = windows(flight, horizon)
     if starts is not None:
         y0, u = y0[starts], u[starts]
@@ -179,7 +215,8 @@ def evaluate(
     over the three Melon runs; ``per_flight`` holds each flight's own scores.
     """
     if not flights:
-        raise ValueError("evaluate: no flights given")
+        raise DataError("evaluate: no flights given")
+    horizon, batch_size = _count(horizon, "horizon"), _count(batch_size, "batch_size")
     per = {f.name: _score_flight(predict, f, horizon, batch_size) for f in flights}
     mae = {k: np.mean([s.mae[k] for s in per.values()], axis=0) for k in metrics.QUANTITIES}
     return Scores(mae=mae, n_windows=sum(s.n_windows for s in per.values()), per_flight=per)
@@ -188,7 +225,8 @@ def evaluate(
 def score(y_true, y_pred) -> Scores:
     """Scores of predictions ``(N, H, 13)`` against truth ``(N, H, 13)``, pooled over windows."""
     y_true, y_pred = _to_numpy(y_true), _to_numpy(y_pred)
-    if y_true.ndim != 3:
-        raise ValueError(f"expected (N, H, 13) arrays, got {y_true.shape}")
+    if y_true.ndim != 3 or y_true.shape != y_pred.shape or y_true.shape[-1] != 13 or not y_true.size:
+        raise PredictionError(f"expected two (N, H, 13) arrays with N, H >= 1, got {y_true.shape} and {y_pred.shape}")
+    check_predictions(y_pred, "score")
     errs = metrics.errors(y_true, y_pred)
     return Scores(mae={k: e.mean(axis=0) for k, e in errs.items()}, n_windows=len(y_true))

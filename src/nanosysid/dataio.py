@@ -11,6 +11,7 @@ are kept as extras.
 from __future__ import annotations
 
 import contextlib
+import glob
 import os
 import re
 import shutil
@@ -182,15 +183,34 @@ def write_flight_csv(flight: Flight, path: str | os.PathLike) -> None:
         df.to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def _sweep(path: Path) -> None:
+    """Remove what a killed earlier write of ``path`` left beside it (our own temporary names)."""
+    for leftover in path.parent.glob(f".{glob.escape(path.name)}.*"):
+        if leftover.name.endswith((".tmp", ".old")):
+            shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink()
+
+
 @contextlib.contextmanager
 def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success."""
+    """Yield a temporary path beside ``path``; rename it onto ``path`` only on success.
+
+    The file gets the user's umask (a temporary file is private until then), and what a killed
+    earlier write left beside ``path`` is removed first.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    _sweep(path)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     os.close(fd)
     try:
         yield Path(tmp)
+        os.chmod(tmp, 0o666 & ~_umask())
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -201,13 +221,17 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
 def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary directory beside ``path``; swap it in for ``path`` only on success.
 
-    The previous contents of ``path`` stay in place until the new directory is complete.
+    The previous contents of ``path`` stay in place until the new directory is complete. The
+    directory gets the user's umask, and what a killed earlier run left beside ``path`` is
+    removed first.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    _sweep(path)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
         yield tmp
+        os.chmod(tmp, 0o777 & ~_umask())
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
             os.replace(path, old / "x")

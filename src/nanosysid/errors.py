@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-__all__ = ["UserError", "DataError", "ConfigError", "ExportError", "ToolchainError"]
+__all__ = ["UserError", "DataError", "ConfigError", "PredictionError", "ExportError", "ToolchainError"]
 
 
 class UserError(ValueError):
@@ -16,6 +16,11 @@ class DataError(UserError):
 
 class ConfigError(UserError):
     """A config file or an override that cannot be applied."""
+
+
+class PredictionError(UserError):
+    """A predictor returned something that cannot be scored: a wrong shape, a non-finite value,
+    a quaternion far from unit norm."""
 
 
 class ExportError(UserError):

@@ -108,12 +108,25 @@ def save_discovered(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[
 
 def load_discovered(path: str | Path, *, name: str = "discovered") -> AugmentedPredictor:
     """The predictor of a model written by :func:`save_discovered`."""
-    d = json.loads(Path(path).read_text())
-    if d.get("format") != "nanosysid-discovered-1":
-        raise DataError(f"{path}: not a discovered model (field 'format' is {d.get('format')!r})")
-    v = d["vehicle"]
-    vehicle = Vehicle.from_mapping(v)
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no discovered model; the discover stage writes it (dvc repro discover)")
+    try:
+        d = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DataError(f"{path}: not valid JSON ({e}); rerun the discover stage") from None
+    if not isinstance(d, dict) or d.get("format") != "nanosysid-discovered-1":
+        got = d.get("format") if isinstance(d, dict) else type(d).__name__
+        raise DataError(f"{path}: not a discovered model (field 'format' is {got!r})")
+    vehicle = Vehicle.from_mapping(d["vehicle"])
     names = list(d["effects"])
+    for n in names:
+        if n not in effects.LIBRARY:
+            raise DataError(f"{path}: effect {n!r} is not in the library ({', '.join(effects.LIBRARY)}); "
+                            "rerun the discover stage")
+        if len(d["effects"][n]["coefficients"]) != len(effects.LIBRARY[n].params):
+            raise DataError(f"{path}: effect {n!r} has {len(d['effects'][n]['coefficients'])} coefficients, "
+                            f"expected {len(effects.LIBRARY[n].params)}")
     theta = [c for n in names for c in d["effects"][n]["coefficients"]]
     step = AugmentedStep(vehicle, names, theta, dt=float(d["dt"]), substeps=int(d["substeps"]))
     return AugmentedPredictor(step, delay=float(d["delay"]), name=name)
