@@ -145,3 +145,67 @@ def test_leftovers_of_a_killed_write_are_removed_by_the_next(tmp_path):
     with atomic_file(tmp_path / "m.json") as tmp:
         tmp.write_text("{}")
     assert sorted(p.name for p in tmp_path.iterdir()) == [".notes.txt", "m.json", "out"]
+
+
+def scale_column(col, factor, rows=slice(None)):
+    def fn(header, rows_):
+        i = header.index(col)
+        for r in rows_[rows]:
+            r[i] = repr(float(r[i]) * factor)
+        return header, rows_
+
+    return fn
+
+
+def drop_rows(a, b):
+    return lambda h, r: (h, r[:a] + r[b:])
+
+
+def jitter_row(row, dt):
+    def fn(header, rows):
+        i = header.index("t")
+        rows[row][i] = repr(float(rows[row][i]) + dt)
+        return header, rows
+
+    return fn
+
+
+@pytest.mark.parametrize("damage, pattern", [
+    # 50 Hz: every other row of a 100 Hz flight, t as it was
+    (lambda h, r: (h, r[::2]), r"column 't': samples 0.02 s apart \(50 Hz\); the benchmark is sampled at 100 Hz"),
+    (scale_column("t", 1000.0), r"column 't': samples 10 s apart \(0.1 Hz\).*is 't' in seconds\?"),
+    (drop_rows(20, 60), r"column 't', row 20 \(line 22\): a gap of 0.41 s after 0.19"),
+    (jitter_row(30, 0.004), r"column 't', row 30 \(line 32\): a step of 0.014 s after 0.29"),
+    (set_cell("x", 9, "inf"), r"column 'x', row 9 \(line 11\): infinite value 'inf'"),
+    (lambda h, r: (h[:-1] + ["x"], r), r"column\(s\) 'x' appear more than once in the header"),
+])
+def test_sample_rate_gaps_and_header_are_checked(dataset, damage, pattern):
+    root, _ = dataset
+    path = root / "test" / "melon_d_run1.csv"
+    corrupt(path, damage)
+    with pytest.raises(DataError, match=pattern) as e:
+        benchmark.load(root, horizon=10)
+    assert str(path) in str(e.value) and "np.float64" not in str(e.value)
+
+
+def test_a_flight_in_train_and_test_is_refused(dataset):
+    root, _ = dataset
+    (root / "test" / "square_d_run1.csv").write_bytes((root / "train" / "square_d_run1.csv").read_bytes())
+    with pytest.raises(DataError, match=r"flight square_d_run1 is in both train/ and test/"):
+        benchmark.load(root)
+
+
+def test_file_names_links_and_folders_are_checked(dataset):
+    root, _ = dataset
+    bad = root / "train" / "my flight.csv"
+    bad.write_bytes((root / "train" / "square_d_run1.csv").read_bytes())
+    with pytest.raises(DataError, match=r"my flight.csv: flight name 'my flight' is not of the form"):
+        benchmark.load(root)
+    bad.unlink()
+    (root / "train" / "chirp_d_run2.csv").symlink_to(root / "nowhere.csv")
+    with pytest.raises(DataError, match=r"chirp_d_run2.csv: no such file \(a broken link\)"):
+        benchmark.load(root)
+    (root / "train" / "chirp_d_run2.csv").unlink()
+    (root / "train" / "chirp_d_run3.csv").mkdir()
+    with pytest.raises(DataError, match=r"chirp_d_run3.csv: a folder, not a flight CSV file"):
+        benchmark.load(root)

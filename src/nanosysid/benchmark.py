@@ -23,7 +23,7 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from nanosysid import metrics
-from nanosysid.dataio import Flight, read_flight_csv
+from nanosysid.dataio import Flight, parse_flight_name, read_flight_csv
 from nanosysid.errors import ConfigError, DataError, PredictionError
 
 __all__ = ["Benchmark", "Flight", "Scores", "evaluate", "load", "predictions", "score", "windows", "check_predictions",
@@ -103,11 +103,23 @@ def load(path: str | os.PathLike, *, horizon: int = 50) -> Benchmark:
     """
     root = Path(path)
     parts = {}
+    seen: dict[str, Path] = {}
     for part in ("train", "test"):
         d = root / part
         if not d.is_dir():
             raise DataError(f"{d}: no such folder (a benchmark folder holds train/ and test/)")
-        parts[part] = [read_flight_csv(f, min_rows=horizon + 1) for f in sorted(d.glob("*.csv"))]
+        files = sorted(d.rglob("*.csv"))
+        for f in files:
+            try:
+                parse_flight_name(f.stem)
+            except ValueError as e:
+                raise DataError(f"{f}: {e}") from None
+            if f.name in seen:
+                where = "both train/ and test/" if seen[f.name].parts[len(root.parts)] != part else "twice"
+                raise DataError(f"{f}: flight {f.stem} is in {where} (also {seen[f.name]}); a flight scored on must "
+                                "not be trained on")
+            seen[f.name] = f
+        parts[part] = [read_flight_csv(f, min_rows=horizon + 1) for f in files]
     if not parts["test"]:
         raise DataError(f"{root / 'test'}: no flight CSV files")
     return Benchmark(train=parts["train"], test=parts["test"], root=root)

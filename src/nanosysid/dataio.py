@@ -44,6 +44,8 @@ ACCEL_COLUMNS = ["ax_body", "ay_body", "az_body"]
 SCHEMA = ["t", *INPUT_COLUMNS, *OUTPUT_COLUMNS, *ACCEL_COLUMNS]
 QUAT_COLUMNS = ["qx", "qy", "qz", "qw"]
 QUAT_NORM_TOL = 1e-3
+SAMPLE_PERIOD = 0.01  # s: the benchmark's 100 Hz, which every model and the protocol assume
+PERIOD_TOL = 0.1  # share of the period a time step may be off it (jitter)
 
 _NAME = re.compile(r"^(?P<trajectory>[A-Za-z][A-Za-z0-9-]*)_(?P<date>[^_]+)_run(?P<run>\d+)$")
 
@@ -121,10 +123,19 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
             rows. The message names the file, the column and the row.
     """
     path = Path(path)
+    if path.is_dir():
+        raise DataError(f"{path}: a folder, not a flight CSV file")
+    if not path.is_file():
+        raise DataError(f"{path}: no such file" + (" (a broken link)" if path.is_symlink() else ""))
     try:
         df = pd.read_csv(path, dtype=str, keep_default_na=False)
+        with open(path, encoding="utf-8") as fh:
+            header = [c.strip() for c in fh.readline().rstrip("\r\n").split(",")]
     except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as e:
         raise DataError(f"{path}: not a readable CSV file ({e})") from None
+    twice = sorted({c for c in header if header.count(c) > 1})
+    if twice:
+        raise DataError(f"{path}: column(s) {', '.join(repr(c) for c in twice)} appear more than once in the header")
     missing = [c for c in SCHEMA if c not in df.columns]
     if missing:
         raise DataError(
@@ -151,10 +162,22 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
     if n < min_rows:
         raise DataError(f"{path}: {n} rows, fewer than the {min_rows} one window needs")
     t = values["t"]
-    step_bad = np.diff(t) <= 0
+    step = np.diff(t)
+    step_bad = step <= 0
     if step_bad.any():
         i = int(np.argmax(step_bad)) + 1
-        raise DataError(f"{_where(path, 't', i)}: time does not increase ({t[i]!r} after {t[i - 1]!r})")
+        raise DataError(f"{_where(path, 't', i)}: time does not increase ({float(t[i])!r} after {float(t[i - 1])!r})")
+    if n > 1:
+        median = float(np.median(step))
+        if abs(median / SAMPLE_PERIOD - 1) > PERIOD_TOL:
+            raise DataError(f"{path}: column 't': samples {median:.6g} s apart ({1 / median:.4g} Hz); the benchmark "
+                            f"is sampled at {1 / SAMPLE_PERIOD:g} Hz ({SAMPLE_PERIOD:g} s; is 't' in seconds?)")
+        off = np.abs(step / SAMPLE_PERIOD - 1) > PERIOD_TOL
+        if off.any():
+            i = int(np.argmax(off)) + 1
+            what = "a gap" if step[i - 1] >= 1.5 * SAMPLE_PERIOD else "a step"
+            raise DataError(f"{_where(path, 't', i)}: {what} of {float(step[i - 1]):.6g} s after {float(t[i - 1])!r} "
+                            f"(samples are {SAMPLE_PERIOD:g} s apart, within {PERIOD_TOL:.0%})")
     q = np.stack([values[c] for c in QUAT_COLUMNS], axis=1)
     norm = np.linalg.norm(q, axis=1)
     off = np.abs(norm - 1) > QUAT_NORM_TOL
