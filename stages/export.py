@@ -37,7 +37,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     bench = benchmark.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
     inputs = check_inputs(ex, bench.test, int(ec.onnx_samples), int(cfg.seed))
     out = export_dir(cfg, name)
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, inputs=[cfg.paths.split]) as tmp:
         files = export_onnx(ex, tmp)
         with torch.no_grad():
             if ex.recurrent:

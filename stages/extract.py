@@ -17,7 +17,7 @@ log = logging.getLogger("nanosysid.extract")
 def extract_folder(bags_dir: Path, out_dir: Path, topics: Mapping[str, Mapping[str, Any]]) -> list[str]:
     """Every bag of ``bags_dir`` to ``out_dir/<flight>/<stream>.parquet``."""
     bags = find_bags(bags_dir)
-    with atomic_dir(out_dir) as tmp:
+    with atomic_dir(out_dir, inputs=[bags_dir]) as tmp:
         for bag in tqdm(bags, desc="extract", unit="bag", disable=None):
             tables = extract_bag(bag, topics)
             (tmp / bag.name).mkdir()

@@ -21,7 +21,7 @@ def filter_folder(sync_dir: Path, out_dir: Path, report_dir: Path, cfg: FilterCo
     if not files:
         raise DataError(f"{sync_dir}: no synchronised flights")
     reports = []
-    with atomic_dir(out_dir) as tmp:
+    with atomic_dir(out_dir, inputs=[sync_dir]) as tmp:
         for f in tqdm(files, desc="filter", unit="flight", disable=None):
             flight, rep = filter_flight(f.stem, pd.read_parquet(f), cfg)
             write_flight_csv(flight, tmp / f"{f.stem}.csv")

@@ -45,7 +45,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     ref = ex.teacher_forced(y_in, u_in)
 
     out = Path(cfg.export.out_dir) / name / "mcu"
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, inputs=[cfg.paths.split, src]) as tmp:
         mcu.write_sources(tmp, ex.c, y_in, u_in)
         size = mcu.build(tmp)
         run = mcu.run(tmp, ex.ny)

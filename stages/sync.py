@@ -27,7 +27,7 @@ def extracted_flights(folder: Path) -> list[Path]:
 def sync_folder(extract_dir: Path, out_dir: Path, report_dir: Path, cfg: SyncConfig) -> list[dict]:
     """Synchronise every extracted flight; writes ``<flight>.parquet`` and ``sync.json``/``sync.md``."""
     reports = []
-    with atomic_dir(out_dir) as tmp:
+    with atomic_dir(out_dir, inputs=[extract_dir]) as tmp:
         for d in tqdm(extracted_flights(extract_dir), desc="sync", unit="flight", disable=None):
             tables = {}
             for stream in ("mocap", "odom", "imu", "motors", "setpoint"):

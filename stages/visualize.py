@@ -21,7 +21,7 @@ def main(cfg: DictConfig) -> list[Path]:
     models = {n: build_from_options(model_options(cfg, n)) for n in cfg.models}
     out = Path(cfg.visualize.out_dir)
     written = []
-    with atomic_dir(out) as tmp:
+    with atomic_dir(out, inputs=[cfg.paths.split]) as tmp:
         for flight in bench.test:
             rollouts = {name: benchmark.predictions(p, flight, horizon=H) for name, p in models.items()}
             write_recording(flight, rollouts, tmp / f"{flight.name}.rrd", stride=int(cfg.visualize.stride))

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from nanosysid import benchmark, synthetic
-from nanosysid.dataio import atomic_dir, atomic_file, read_flight_csv, write_flight_csv
-from nanosysid.errors import DataError
+from nanosysid.dataio import OWNER, atomic_dir, atomic_file, read_flight_csv, write_flight_csv
+from nanosysid.errors import ConfigError, DataError
 
 
 @pytest.fixture
@@ -112,14 +112,38 @@ def test_small_quaternion_drift_is_accepted(tmp_path):
 
 def test_atomic_dir_keeps_old_contents_on_failure(tmp_path):
     out = tmp_path / "out"
-    out.mkdir()
-    (out / "keep.txt").write_text("old")
+    with atomic_dir(out) as tmp:
+        (tmp / "keep.txt").write_text("old")
     with pytest.raises(RuntimeError):
         with atomic_dir(out) as tmp:
             (tmp / "partial.txt").write_text("new")
             raise RuntimeError("stage failed")
-    assert os.listdir(out) == ["keep.txt"]
+    assert sorted(os.listdir(out)) == [OWNER, "keep.txt"] and (out / "keep.txt").read_text() == "old"
     assert os.listdir(tmp_path) == ["out"]  # no temporary left behind
+
+
+def test_a_folder_no_stage_wrote_is_never_replaced(tmp_path):
+    mine = tmp_path / "mine"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("the user's")
+    with pytest.raises(ConfigError, match=r"mine: holds files no stage of this pipeline wrote"):
+        with atomic_dir(mine) as tmp:
+            (tmp / "f").write_text("x")
+    assert os.listdir(mine) == ["notes.txt"]
+    (tmp_path / "empty").mkdir()
+    with atomic_dir(tmp_path / "empty") as tmp:  # an empty folder is fine
+        (tmp / "f").write_text("x")
+
+
+@pytest.mark.parametrize("out", ["bags", "bags/extract", "."])
+def test_an_output_overlapping_its_input_is_refused(tmp_path, out):
+    bags = tmp_path / "bags"
+    bags.mkdir()
+    (bags / "flight.mcap").write_text("data")
+    with pytest.raises(ConfigError, match=r"the output folder would overlap the input"):
+        with atomic_dir(tmp_path / out, inputs=[bags]) as tmp:
+            (tmp / "f").write_text("x")
+    assert os.listdir(bags) == ["flight.mcap"]
 
 
 def test_written_files_and_folders_get_the_users_umask(tmp_path):
@@ -145,6 +169,7 @@ def test_leftovers_of_a_killed_write_are_removed_by_the_next(tmp_path):
     with atomic_file(tmp_path / "m.json") as tmp:
         tmp.write_text("{}")
     assert sorted(p.name for p in tmp_path.iterdir()) == [".notes.txt", "m.json", "out"]
+    assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [OWNER, "f"]
 
 
 def scale_column(col, factor, rows=slice(None)):

@@ -134,6 +134,34 @@ def test_discovery_never_imports_the_simulated_world():
         assert not reached, f"{module} imports the simulator: {reached}"
 
 
+@pytest.mark.parametrize("module", ["src/nanosysid/bags/sync.py", "src/nanosysid/effects.py"])
+def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tmp_path, venv_env, module):
+    import json
+    import shutil
+    import subprocess
+
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    for item in ("dvc.yaml", "dvc.lock", "params.yaml", "conf", "stages", "src", ".dvcignore", ".gitignore"):
+        (shutil.copytree if (ROOT / item).is_dir() else shutil.copy)(ROOT / item, repo / item)
+    (repo / ".dvc").mkdir()
+    shutil.copy(ROOT / ".dvc" / "config", repo / ".dvc" / "config")
+
+    def sh(*cmd):
+        r = subprocess.run(cmd, cwd=repo, env=venv_env, capture_output=True, text=True)
+        assert r.returncode == 0, f"{cmd}: {r.stdout}\n{r.stderr}"
+        return r.stdout
+
+    sh("git", "init", "-q")
+    with open(repo / module, "a") as f:
+        f.write("\n# changed\n")
+    status = json.loads(sh("dvc", "status", "--json"))
+    stale = {name.split("@")[0] for name, entries in status.items() for e in entries
+             if isinstance(e, dict) and module in e.get("changed deps", {})}
+    importers = {name for name, (script, _) in stages().items() if ROOT / module in imported_files(script)}
+    assert stale == importers
+
+
 if __name__ == "__main__":
     for name, (module, _) in sorted(stages().items()):
         print(f"{name}:", *needed_deps(module), sep="\n  - ")

@@ -233,7 +233,7 @@ def test_visualize_writes_a_recording_per_test_flight(tiny):
     evaluated(tiny)
 
     assert run(visualize, tiny, "visualize.stride=40") == 0
-    files = sorted(p.name for p in (tiny / "rerun").iterdir())
+    files = sorted(p.name for p in (tiny / "rerun").iterdir() if not p.name.startswith("."))
     assert files == ["melon_20250601_run1.rrd", "melon_20250601_run2.rrd"]
     T = len(read_flight_csv(tiny / "split" / "test" / "melon_20250601_run1.csv"))
     n = T - 50
@@ -330,3 +330,18 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     assert out.count("Running stage") == 6, out  # its export, MCU run, the report and recordings
     out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.network.hidden=62")
     assert "Stage 'train@lstm' is cached - skipping run" in out and "Running stage" not in out
+
+
+@pytest.mark.parametrize("stage, key, onto", [
+    (extract, "recording.extract_dir", "raw/bags"),   # the output folder is the bags folder
+    (split, "paths.split", "flights"),                # the split written over the flights it splits
+    (sync, "recording.sync_dir", "reports"),          # a folder the stage did not write
+])
+def test_a_stage_never_replaces_its_input_or_a_folder_it_did_not_write(tiny, tmp_path, capsys, stage, key, onto):
+    work = tmp_path / "w"
+    shutil.copytree(tiny, work, ignore=shutil.ignore_patterns("params.yaml", "rerun", "models", "train"))
+    before = sorted(str(p.relative_to(work)) for p in work.rglob("*"))
+    assert run(stage, work, f"{key}={work / onto}") == 2
+    err = capsys.readouterr().err
+    assert err.count("error:") == 1 and str(work / onto) in err
+    assert sorted(str(p.relative_to(work)) for p in work.rglob("*")) == before

@@ -18,12 +18,12 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
 
 import numpy as np
 import pandas as pd
 
-from nanosysid.errors import DataError
+from nanosysid.errors import ConfigError, DataError
 
 __all__ = [
     "INPUT_COLUMNS",
@@ -240,20 +240,39 @@ def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
             os.unlink(tmp)
 
 
+OWNER = ".nanosysid-output"  # the mark of a folder a stage wrote, and may replace
+
+
+def check_output_dir(path: Path, inputs: Sequence[str | os.PathLike] = ()) -> None:
+    """Refuse an output folder that is, contains or lies inside one of the stage's inputs, or
+    that holds files no stage wrote (a folder of the user's, which replacing would wipe)."""
+    out = path.resolve()
+    for given in inputs:
+        inp = Path(given).resolve()
+        if out == inp or out in inp.parents or inp in out.parents:
+            raise ConfigError(f"{path}: the output folder would overlap the input {given}; choose another folder")
+    if path.is_dir() and any(path.iterdir()) and not (path / OWNER).is_file():
+        raise ConfigError(f"{path}: holds files no stage of this pipeline wrote; refusing to replace it "
+                          "(choose a new or empty folder)")
+
+
 @contextlib.contextmanager
-def atomic_dir(path: str | os.PathLike) -> Iterator[Path]:
+def atomic_dir(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike] = ()) -> Iterator[Path]:
     """Yield a temporary directory beside ``path``; swap it in for ``path`` only on success.
 
-    The previous contents of ``path`` stay in place until the new directory is complete. The
-    directory gets the user's umask, and what a killed earlier run left beside ``path`` is
-    removed first.
+    The previous contents of ``path`` stay in place until the new directory is complete, and
+    are replaced only if a stage wrote them (:func:`check_output_dir`; ``inputs`` are the
+    stage's input folders). The directory gets the user's umask and the mark :data:`OWNER`,
+    and what a killed earlier run left beside ``path`` is removed first.
     """
     path = Path(path)
+    check_output_dir(path, inputs)
     path.parent.mkdir(parents=True, exist_ok=True)
     _sweep(path)
     tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
     try:
         yield tmp
+        (tmp / OWNER).write_text("written by a nanosysid stage; the stage replaces this folder as a whole\n")
         os.chmod(tmp, 0o777 & ~_umask())
         if path.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))

@@ -8,9 +8,8 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from nanosysid.errors import ConfigError
 from nanosysid.dataio import atomic_dir, parse_flight_name, read_flight_csv
-from nanosysid.errors import DataError
+from nanosysid.errors import ConfigError, DataError
 
 __all__ = ["split_folder"]
 
@@ -58,7 +57,7 @@ def split_folder(
     if not parts["test"]:
         raise DataError(f"{src}: no flight of the test trajectories {list(test)}")
     summary: dict = {}
-    with atomic_dir(dst) as tmp:
+    with atomic_dir(dst, inputs=[src]) as tmp:
         for part, flist in parts.items():
             (tmp / part).mkdir()
             samples = {}
