@@ -339,7 +339,7 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
 ])
 def test_a_stage_never_replaces_its_input_or_a_folder_it_did_not_write(tiny, tmp_path, capsys, stage, key, onto):
     work = tmp_path / "w"
-    shutil.copytree(tiny, work, ignore=shutil.ignore_patterns("params.yaml", "rerun", "models", "train"))
+    shutil.copytree(tiny, work, ignore=shutil.ignore_patterns("rerun", "models", "train"))
     before = sorted(str(p.relative_to(work)) for p in work.rglob("*"))
     assert run(stage, work, f"{key}={work / onto}") == 2
     err = capsys.readouterr().err

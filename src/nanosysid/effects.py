@@ -145,7 +145,7 @@ DELAY = Effect("input_delay", "the recorded rotor speeds lag the true ones by a 
 
 LIBRARY: dict[str, Effect] = {e.name: e for e in (
     Effect("induced_drag", "blade flapping and induced drag, linear in the rotor speeds and the body velocity: "
-           "F_B = -(Σ Ω_i) diag(K_xy, K_xy, K_z) v_B (Faessler et al. 2018, Kai et al. 2017)",
+           "F_B = -(Σ Ω_i) diag(K_xy, K_xy, K_z) v_B (Förster's Crazyflie 2 identification)",
            ("K_xy [kg/rad]", "K_z [kg/rad]"), _induced_drag, ("p", "v")),
     Effect("quadratic_drag", "quadratic airframe drag: F_B = -diag(c_xy, c_xy, c_z) |v_B| v_B",
            ("c_xy [kg/m]", "c_z [kg/m]"), _quadratic_drag, ("p", "v")),
