@@ -12,7 +12,7 @@ from nanosysid import synthetic
 from nanosysid.export import mcu
 from nanosysid.errors import ToolchainError
 from nanosysid.export.cgen import Tracer, physics_step_scalar
-from nanosysid.export.csource import learned_source, physics_source
+from nanosysid.export.csource import learned_source
 from nanosysid.export.steps import augmented_step, check_inputs, export_onnx, learned_step, onnx_outputs, physics_step
 from nanosysid.models.learned import LearnedPredictor, build_model
 from nanosysid.models.physics import PhysicsStep

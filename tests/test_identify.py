@@ -6,7 +6,7 @@ import re
 import numpy as np
 import pytest
 
-from nanosysid import benchmark, identify, models, synthetic
+from nanosysid import identify, models, synthetic
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 

@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from scipy.signal import savgol_filter
 
-from nanosysid.dataio import Flight
 from nanosysid import effects
+from nanosysid.dataio import Flight
 from nanosysid.identify import body_torque
 from nanosysid.rollout import advance_inputs
 from nanosysid.vehicle import Vehicle

@@ -5,13 +5,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import torch
 from torch import Tensor, nn
 
-from nanosysid.errors import ExportError
 from nanosysid.export.csource import CModel, learned_source, physics_source
 
 __all__ = ["Exportable", "physics_step", "augmented_step", "learned_step", "export_onnx", "onnx_outputs",

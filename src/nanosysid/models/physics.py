@@ -5,7 +5,6 @@ from __future__ import annotations
 import functools
 
 import numpy as np
-import torch
 from torch import Tensor, nn
 
 from nanosysid import dynamics

@@ -15,9 +15,9 @@ from __future__ import annotations
 from typing import Mapping
 
 from nanosysid.dataio import Flight
-from nanosysid.sim.world import DEFAULT_WORLD, EFFECTS, World
 from nanosysid.sim.oracle import Oracle
 from nanosysid.sim.simulator import SimConfig, simulate
+from nanosysid.sim.world import DEFAULT_WORLD, EFFECTS, World
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["EFFECTS", "DEFAULT_WORLD", "World", "SimConfig", "flight_specs", "simulate_flight", "simulate_flights",
