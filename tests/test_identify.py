@@ -43,7 +43,7 @@ def test_physics_models_use_the_identified_coefficients(tmp_path):
 
 
 @pytest.mark.parametrize("content, problem", [
-    (None, "the identify stage writes them"),
+    (None, "no identified parameters; the identify stage writes it"),
     ("{not json", "not valid JSON"),
     ('{"k_f": 4e-8, "k_m": 8e-11}', "field 'format'"),
     ('{"format": "nanosysid-identified-1", "k_f": "big", "k_m": 8e-11}', "field 'k_f' is 'big'"),

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import glob
+import json
 import os
 import re
 import shutil
@@ -34,6 +35,7 @@ __all__ = [
     "parse_flight_name",
     "read_flight_csv",
     "write_flight_csv",
+    "read_json_record",
     "atomic_file",
     "atomic_dir",
 ]
@@ -194,6 +196,22 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
         y=np.stack([values[c] for c in OUTPUT_COLUMNS], axis=1),
         extra={c: values[c] for c in df.columns if c not in ("t", *INPUT_COLUMNS, *OUTPUT_COLUMNS)},
     )
+
+
+def read_json_record(path: str | os.PathLike, fmt: str, what: str, stage: str) -> dict:
+    """A JSON record a stage wrote (``{"format": fmt, ...}``), or one :class:`DataError` naming
+    the file and the stage that writes it: missing, not JSON, or of another format."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no {what}; the {stage} stage writes it (dvc repro {stage})")
+    try:
+        d = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as e:
+        raise DataError(f"{path}: not valid JSON ({e}); rerun the {stage} stage") from None
+    if not isinstance(d, dict) or d.get("format") != fmt:
+        got = d.get("format") if isinstance(d, dict) else type(d).__name__
+        raise DataError(f"{path}: not {what} (field 'format' is {got!r}, expected {fmt!r}); rerun the {stage} stage")
+    return d
 
 
 def write_flight_csv(flight: Flight, path: str | os.PathLike) -> None:

@@ -26,7 +26,7 @@ from typing import Any, Sequence
 import numpy as np
 from scipy.signal import savgol_filter
 
-from nanosysid.dataio import Flight, atomic_file
+from nanosysid.dataio import Flight, atomic_file, read_json_record
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
@@ -113,16 +113,7 @@ def save_params(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Fligh
 def load_params(path: str | Path) -> dict[str, Any]:
     """Read a ``params.json`` written by :func:`save_params`, checked: k_F and k_M positive and finite."""
     path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no identified parameters; the identify stage writes them (dvc repro identify)")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DataError(f"{path}: not valid JSON ({e}); rerun the identify stage") from None
-    if not isinstance(d, dict) or d.get("format") != FORMAT:
-        got = d.get("format") if isinstance(d, dict) else type(d).__name__
-        raise DataError(f"{path}: not identified parameters (field 'format' is {got!r}, expected {FORMAT!r}); "
-                        "rerun the identify stage")
+    d = read_json_record(path, FORMAT, "identified parameters", "identify")
     for key in ("k_f", "k_m"):
         v = d.get(key)
         if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or v <= 0:

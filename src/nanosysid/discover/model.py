@@ -13,6 +13,7 @@ import torch
 from torch import Tensor, nn
 
 from nanosysid import dynamics, effects
+from nanosysid.dataio import atomic_file, read_json_record
 from nanosysid.errors import DataError
 from nanosysid.rollout import advance_inputs, as_tensor, rollout
 from nanosysid.vehicle import Vehicle
@@ -96,8 +97,6 @@ def save_discovered(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[
                dt: float = 0.01, substeps: int = 1) -> dict[str, Any]:
     """The augmented model as JSON: vehicle (with the refitted k_F, k_M), effects and their
     coefficients, delay."""
-    from nanosysid.dataio import atomic_file
-
     payload = {"format": "nanosysid-discovered-1", "vehicle": dataclasses.asdict(vehicle),
                "effects": {k: dict(v) for k, v in effects.items()}, "delay": float(delay), "dt": dt,
                "substeps": substeps}
@@ -108,16 +107,7 @@ def save_discovered(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[
 
 def load_discovered(path: str | Path, *, name: str = "discovered") -> AugmentedPredictor:
     """The predictor of a model written by :func:`save_discovered`."""
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no discovered model; the discover stage writes it (dvc repro discover)")
-    try:
-        d = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as e:
-        raise DataError(f"{path}: not valid JSON ({e}); rerun the discover stage") from None
-    if not isinstance(d, dict) or d.get("format") != "nanosysid-discovered-1":
-        got = d.get("format") if isinstance(d, dict) else type(d).__name__
-        raise DataError(f"{path}: not a discovered model (field 'format' is {got!r})")
+    d = read_json_record(path, "nanosysid-discovered-1", "a discovered model", "discover")
     vehicle = Vehicle.from_mapping(d["vehicle"])
     names = list(d["effects"])
     for n in names:
