@@ -161,31 +161,151 @@ def test_missing_and_empty_topics(bag, tmp_path):
         extract_bag(dst, TOPICS)
 
 
-def test_time_stamps_going_back_or_repeating(bag, tmp_path):
+def clock_jump(topic_name, dt=0.0, dt_recv=0.0, after=300):
+    """A change that moves the source stamps (dt, s) and receive times (dt_recv, s) of every
+    message of one topic from message ``after`` on."""
     count = {"n": 0}
 
-    def back(topic, m, t):
-        if topic == IMU:
+    def change(topic, m, t):
+        if topic == topic_name:
             count["n"] += 1
-            if count["n"] > 300:
-                return shift_stamp(m, -5.0), t  # the STM32 clock jumps back 5 s
+            if count["n"] > after:
+                return shift_stamp(m, dt), t + int(round(dt_recv * 1e9))
         return m, t
 
-    with pytest.raises(DataError, match=rf"back: topic {IMU} \(imu\), message 300: time stamp goes backwards by 4\.9\d\d s"):
-        extract_bag(rewrite(bag, tmp_path / "back", back), TOPICS)
-    seen = {"prev": None}
+    return change
+
+
+@pytest.mark.parametrize("jump", [5.0, 0.305, 0.3, 0.031])
+def test_source_clock_jumping_back_stops_extraction(bag, tmp_path, jump):
+    # 0.3 s is a whole number of IMU periods: the stamps after the jump repeat earlier ones
+    dst = rewrite(bag, tmp_path / "back", clock_jump(IMU, dt=-jump))
+    with pytest.raises(DataError, match=rf"back: topic {IMU} \(imu\), message 300: the source time stamp goes "
+                                        rf"backwards by {jump:.2f}\d s"):
+        extract_bag(dst, TOPICS)
+
+
+def test_receive_clock_jumping_back_is_named_as_such(bag, tmp_path):
+    dst = rewrite(bag, tmp_path / "recv", clock_jump(IMU, dt_recv=-0.3))
+    with pytest.raises(DataError, match=rf"recv: topic {IMU} \(imu\), message \d+: the receive time goes backwards "
+                                        r"by 0\.(29|30)\d s against the source time stamps"):
+        extract_bag(dst, TOPICS)
+
+
+def test_late_delivery_and_small_clock_steps_pass(bag, tmp_path):
+    """Messages delivered up to 40 ms late (out of order) and a clock step of one period are
+    not clock jumps; the table comes out sorted by the source stamp."""
+    rng = np.random.default_rng(1)
+
+    def late(topic, m, t):
+        return (m, t + int(rng.choice([0, 0, 0, 40e6]))) if topic == IMU else (m, t)
+
+    ref = extract_bag(bag, TOPICS)["imu"]
+    got = extract_bag(rewrite(bag, tmp_path / "late", late), TOPICS)["imu"]
+    assert np.all(np.diff(got["t_src"]) > 0)
+    np.testing.assert_array_equal(got["t_src"], ref["t_src"])
+    np.testing.assert_array_equal(got["wx"], ref["wx"])
+    tables = extract_bag(rewrite(bag, tmp_path / "step", clock_jump(IMU, dt=0.015)), TOPICS)
+    assert len(tables["imu"]) == len(ref)
+
+
+def test_repeated_stamp(bag, tmp_path):
+    seen = {"prev": None, "done": False}
 
     def repeat(topic, m, t):
         if topic == IMU:
             cur, seen["prev"] = seen["prev"], m
-            if cur is not None and count["n"] == 0:
-                count["n"] = 1
+            if cur is not None and not seen["done"]:
+                seen["done"] = True
                 return dataclasses.replace(m, header=cur.header), t  # the previous message's stamp
         return m, t
 
-    count["n"] = 0
     with pytest.raises(DataError, match=rf"repeat: topic {IMU} \(imu\): time stamp .* repeats"):
         extract_bag(rewrite(bag, tmp_path / "repeat", repeat), TOPICS)
+
+
+def test_topic_of_another_message_type(bag):
+    topics = {**TOPICS, "imu": {**TOPICS["imu"], "type": "geometry_msgs/msg/PoseStamped"}}
+    with pytest.raises(DataError, match=rf"topic {IMU} \(imu\) carries sensor_msgs/msg/Imu, but the topic map "
+                                        "says geometry_msgs/msg/PoseStamped"):
+        extract_bag(bag, topics)
+
+
+@pytest.mark.parametrize("change, message", [
+    (("odom", "frame", "world"), r"odom\.frame is not an option of this stream"),
+    (("odom", "velocity_frame", "map"), r"odom\.velocity_frame must be one of world, body, got 'map'"),
+    (("motors", "pole_pairs", 0), r"motors\.pole_pairs must be a positive number, got 0"),
+    (("imu", "type", None), r"imu\.type is missing"),
+])
+def test_topic_map_errors(bag, change, message):
+    from nanosysid.errors import ConfigError
+
+    stream, key, value = change
+    spec = dict(TOPICS[stream])
+    if value is None:
+        del spec[key]
+    else:
+        spec[key] = value
+    with pytest.raises(ConfigError, match=message):
+        extract_bag(bag, {**TOPICS, stream: spec})
+
+
+def test_body_frame_velocity_is_rotated_into_the_world(raw, bag, tmp_path):
+    topics = {**TOPICS, "odom": {**TOPICS["odom"], "velocity_frame": "body"}}
+    path = tmp_path / "body"
+    record_flight(raw, 0, path, topics=topics, cfg=RecorderConfig(), noise=CFG.noise, world=WORLD,
+                  vehicle=Vehicle(), seed=0)
+    with AnyReader([path], default_typestore=typestore()) as r:
+        c = next(c for c in r.connections if c.topic == TOPICS["odom"]["topic"])
+        m = r.deserialize(next(r.messages(connections=[c]))[2], c.msgtype)
+    ref = extract_bag(bag, TOPICS)["odom"]
+    # the message holds the body-frame velocity: its length is the world velocity's
+    v_body = np.array([m.twist.twist.linear.x, m.twist.twist.linear.y, m.twist.twist.linear.z])
+    assert np.linalg.norm(v_body) == pytest.approx(np.linalg.norm(ref[["vx", "vy", "vz"]].to_numpy()[0]), rel=1e-9)
+    got = extract_bag(path, topics)["odom"]
+    np.testing.assert_allclose(got[["vx", "vy", "vz"]], ref[["vx", "vy", "vz"]], atol=1e-12)
+
+
+def test_zero_quaternion_and_motors_never_valid(bag, tmp_path):
+    count = {"n": 0}
+
+    def zero_quat(topic, m, t):
+        if topic == MOCAP:
+            count["n"] += 1
+            if count["n"] == 10:
+                q = dataclasses.replace(m.pose.orientation, x=0.0, y=0.0, z=0.0, w=0.0)
+                return dataclasses.replace(m, pose=dataclasses.replace(m.pose, orientation=q)), t
+        return m, t
+
+    with pytest.raises(DataError, match=rf"zero: topic {MOCAP} \(mocap\), message 9: the orientation quaternion "
+                                        "has norm 0, not 1"):
+        extract_bag(rewrite(bag, tmp_path / "zero", zero_quat), TOPICS)
+    motors = TOPICS["motors"]["topic"]
+
+    def invalid(topic, m, t):
+        if topic == motors:
+            return dataclasses.replace(m, erpm=np.array([1000, TOPICS["motors"]["invalid"], 1000, 1000],
+                                                        dtype=m.erpm.dtype)), t
+        return m, t
+
+    with pytest.raises(DataError, match=rf"invalid: topic {motors} \(motors\): every reading of m2 is the invalid "
+                                        "marker 65535"):
+        extract_bag(rewrite(bag, tmp_path / "invalid", invalid), TOPICS)
+
+
+def test_bag_folder_without_metadata(bag, tmp_path):
+    import shutil
+
+    from nanosysid.bags.extract import find_bags
+
+    shutil.copytree(bag, tmp_path / "good")
+    shutil.copytree(bag, tmp_path / "bare")
+    (tmp_path / "bare" / "metadata.yaml").unlink()
+    with pytest.raises(DataError, match=r"bare: a bag without metadata\.yaml"):
+        find_bags(tmp_path)
+    (tmp_path / "notes").mkdir()  # a folder with no bag files is not a bag
+    shutil.rmtree(tmp_path / "bare")
+    assert [p.name for p in find_bags(tmp_path)] == ["good"]
 
 
 def test_nan_value(bag, tmp_path):

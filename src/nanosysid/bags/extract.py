@@ -15,16 +15,18 @@ import numpy as np
 import pandas as pd
 from rosbags.highlevel import AnyReader
 
-from nanosysid.errors import DataError
+from nanosysid.errors import ConfigError, DataError
 from nanosysid.bags.messages import typestore
 
-__all__ = ["find_bags", "extract_bag", "STREAM_COLUMNS", "MAX_REORDER"]
+__all__ = ["find_bags", "extract_bag", "check_topics", "STREAM_COLUMNS", "MAX_CLOCK_STEP"]
 
 log = logging.getLogger(__name__)
 
-# a source stamp may fall behind the previous one by this much (s) through out-of-order
-# delivery; more than that is a clock that went backwards
-MAX_REORDER = 0.5
+# Out-of-order delivery delays single messages; a clock that jumps moves every later message.
+# The latency t_recv - t_src over a block of this many received messages has a minimum at
+# the link's base latency, whatever the jitter, so a step of that minimum is a clock jump.
+CLOCK_BLOCK = 5
+MAX_CLOCK_STEP = 2.0  # sample periods
 
 
 def _pose(m) -> list[float]:
@@ -35,6 +37,13 @@ def _pose(m) -> list[float]:
 def _odom(m) -> list[float]:
     p, q, v = m.pose.pose.position, m.pose.pose.orientation, m.twist.twist.linear
     return [p.x, p.y, p.z, q.x, q.y, q.z, q.w, v.x, v.y, v.z]
+
+
+def rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Vectors ``v`` (N, 3) rotated by the quaternions ``q`` (N, 4, x y z w): body to world."""
+    u, w = q[:, :3], q[:, 3:]
+    t = 2.0 * np.cross(u, v)
+    return v + w * t + np.cross(u, t)
 
 
 def _imu(m) -> list[float]:
@@ -64,11 +73,57 @@ _READERS: dict[str, Callable[[Any], list[float]]] = {
 }
 
 
+# the options each stream of a topic map takes, beside ``topic`` and ``type``
+_OPTIONS: dict[str, dict[str, Any]] = {
+    "odom": {"velocity_frame": ("world", "body")},
+    "motors": {"erpm_unit": float, "pole_pairs": float, "invalid": int},
+}
+
+
+def check_topics(topics: Mapping[str, Mapping[str, Any]], where: str = "topic map") -> None:
+    """Refuse a topic map with a missing stream, a missing or unknown option or a bad value.
+
+    Raises:
+        ConfigError: naming the stream and the option.
+    """
+    missing = sorted(set(STREAM_COLUMNS) - set(topics))
+    if missing:
+        raise ConfigError(f"{where}: no entry for the stream(s) {', '.join(missing)}")
+    for stream, spec in topics.items():
+        if stream not in STREAM_COLUMNS:
+            raise ConfigError(f"{where}: unknown stream {stream!r}; the streams are {', '.join(STREAM_COLUMNS)}")
+        options = _OPTIONS.get(stream, {})
+        for key in ("topic", "type", *(k for k in options if k != "velocity_frame")):
+            if key not in spec:
+                raise ConfigError(f"{where}: {stream}.{key} is missing")
+        for key, value in spec.items():
+            if key in ("topic", "type"):
+                if not isinstance(value, str) or not value:
+                    raise ConfigError(f"{where}: {stream}.{key} must be a name, got {value!r}")
+            elif key not in options:
+                raise ConfigError(f"{where}: {stream}.{key} is not an option of this stream "
+                                  f"(it takes {', '.join(['topic', 'type', *options])})")
+            elif isinstance(options[key], tuple):
+                if value not in options[key]:
+                    raise ConfigError(f"{where}: {stream}.{key} must be one of {', '.join(options[key])}, got {value!r}")
+            elif isinstance(value, bool) or not isinstance(value, (int, float)) or not np.isfinite(value) or (
+                    options[key] is float and value <= 0):
+                raise ConfigError(f"{where}: {stream}.{key} must be a {'positive number' if options[key] is float else 'whole number'}, "
+                                  f"got {value!r}")
+
+
 def find_bags(folder: Path) -> list[Path]:
-    """ROS 2 bags in a folder: sub-folders holding a ``metadata.yaml``, sorted by name."""
+    """ROS 2 bags in a folder: sub-folders holding a ``metadata.yaml``, sorted by name.
+
+    Raises:
+        DataError: no bag, or a sub-folder holding bag files but no ``metadata.yaml``.
+    """
     folder = Path(folder)
     if not folder.is_dir():
         raise DataError(f"{folder}: no such folder of bags")
+    for sub in sorted(p for p in folder.iterdir() if p.is_dir()):
+        if not (sub / "metadata.yaml").is_file() and any(sub.glob("*.mcap")) | any(sub.glob("*.db3")):
+            raise DataError(f"{sub}: a bag without metadata.yaml (rebuild it with `ros2 bag reindex {sub}`)")
     bags = sorted(p.parent for p in folder.glob("*/metadata.yaml"))
     if not bags:
         raise DataError(f"{folder}: no ROS 2 bag (a folder with metadata.yaml) found")
@@ -79,9 +134,12 @@ def extract_bag(bag: Path, topics: Mapping[str, Mapping[str, Any]]) -> dict[str,
     """Read the streams of the topic map from one bag.
 
     Raises:
-        DataError: an unreadable bag, a missing or empty topic, a repeated source stamp or one
-            that goes backwards, or a NaN; the message names the bag, the topic and the problem.
+        DataError: an unreadable bag, a missing or empty topic, a topic of another message type,
+            a clock that jumps by more than two sample periods, a repeated source stamp, a NaN,
+            a degenerate quaternion or a motor that never gives a valid reading; the message
+            names the bag, the topic and the problem.
     """
+    check_topics(topics)
     bag = Path(bag)
     try:
         reader = AnyReader([bag], default_typestore=typestore())
@@ -97,6 +155,9 @@ def extract_bag(bag: Path, topics: Mapping[str, Mapping[str, Any]]) -> dict[str,
                 raise DataError(
                     f"{bag}: topic {spec['topic']} ({stream}) not found; the bag has: {', '.join(sorted(by_topic))}"
                 )
+            if c.msgtype != spec["type"]:
+                raise DataError(f"{bag}: topic {spec['topic']} ({stream}) carries {c.msgtype}, "
+                                f"but the topic map says {spec['type']}")
             conns[stream] = c
         rows: dict[str, list] = {s: [] for s in topics}
         stream_of = {c.id: s for s, c in conns.items()}
@@ -113,7 +174,7 @@ def extract_bag(bag: Path, topics: Mapping[str, Mapping[str, Any]]) -> dict[str,
             raise DataError(f"{bag}: the bag is damaged or truncated ({type(e).__name__}: {e})") from None
     finally:
         reader.close()
-    return {s: _table(bag, topics[s]["topic"], s, rows[s]) for s in topics}
+    return {s: _table(bag, topics[s], s, rows[s]) for s in topics}
 
 
 def _motors(m, spec: Mapping[str, Any]) -> list[float]:
@@ -122,9 +183,11 @@ def _motors(m, spec: Mapping[str, Any]) -> list[float]:
     return list(np.where(counts == spec["invalid"], np.nan, rads))  # a missed reading is missing
 
 
-def _table(bag: Path, topic: str, stream: str, rows: list) -> pd.DataFrame:
+def _table(bag: Path, spec: Mapping[str, Any], stream: str, rows: list) -> pd.DataFrame:
+    topic = spec["topic"]
+    where = f"{bag}: topic {topic} ({stream})"
     if not rows:
-        raise DataError(f"{bag}: topic {topic} ({stream}) has no messages")
+        raise DataError(f"{where} has no messages")
     cols = ["t_recv", "t_src", *STREAM_COLUMNS[stream]]
     df = pd.DataFrame(rows, columns=cols)
     values = df[cols[2:]].to_numpy()
@@ -133,17 +196,65 @@ def _table(bag: Path, topic: str, stream: str, rows: list) -> pd.DataFrame:
     bad |= np.isinf(values)
     if bad.any():
         i, j = np.argwhere(bad)[0]
-        raise DataError(f"{bag}: topic {topic} ({stream}), message {i}: field {cols[2 + j]} is {values[i, j]}")
-    d = np.diff(df["t_src"].to_numpy())
-    back = d < -MAX_REORDER
-    if back.any():
-        i = int(np.argmax(back)) + 1
-        raise DataError(
-            f"{bag}: topic {topic} ({stream}), message {i}: time stamp goes backwards by {-d[i - 1]:.3f} s"
-        )
+        raise DataError(f"{where}, message {i}: field {cols[2 + j]} is {values[i, j]}")
+    if stream == "motors":
+        never = [c for c in cols[2:] if df[c].isna().all()]
+        if never:
+            raise DataError(f"{where}: every reading of {', '.join(never)} is the invalid marker "
+                            f"{spec['invalid']}: the motor telemetry is unusable")
+    if "qw" in df:
+        norm = np.linalg.norm(df[["qx", "qy", "qz", "qw"]].to_numpy(), axis=1)
+        off = np.abs(norm - 1.0) > 0.1
+        if off.any():
+            i = int(np.argmax(off))
+            raise DataError(f"{where}, message {i}: the orientation quaternion has norm {norm[i]:.3g}, not 1")
+    if spec.get("velocity_frame") == "body":
+        v = rotate(df[["qx", "qy", "qz", "qw"]].to_numpy(), df[["vx", "vy", "vz"]].to_numpy())
+        df[["vx", "vy", "vz"]] = v
+    _check_clock(where, df["t_src"].to_numpy(), df["t_recv"].to_numpy())
     df = df.sort_values("t_src", kind="stable").reset_index(drop=True)
-    rep = np.diff(df["t_src"].to_numpy()) == 0
-    if rep.any():
-        i = int(np.argmax(rep)) + 1
-        raise DataError(f"{bag}: topic {topic} ({stream}): time stamp {df['t_src'][i]:.9f} s repeats")
+    rep = np.flatnonzero(np.diff(df["t_src"].to_numpy()) == 0)
+    if rep.size:
+        raise DataError(f"{where}: time stamp {df['t_src'][rep[0] + 1]:.9f} s repeats")
     return df
+
+
+def _period(t_src: np.ndarray) -> float:
+    d = np.diff(np.sort(t_src))
+    d = d[d > 0]
+    return float(np.median(d)) if d.size else 0.0
+
+
+def _check_clock(where: str, t_src: np.ndarray, t_recv: np.ndarray) -> None:
+    """Refuse a source or receive clock that jumps by more than two sample periods.
+
+    The messages are in receive order; out-of-order delivery, which only ever adds delay to a
+    message, is allowed.
+    """
+    n = len(t_src) // CLOCK_BLOCK * CLOCK_BLOCK
+    if n < 2 * CLOCK_BLOCK:
+        return
+    limit = MAX_CLOCK_STEP * _period(t_src)
+    d = t_recv - t_src
+    floor = d[:n].reshape(-1, CLOCK_BLOCK).min(axis=1)  # the base latency of each block
+    step = np.diff(floor)
+    jump = np.abs(step) > limit
+    if not jump.any():
+        return
+    k = int(np.argmax(jump))
+    lo = k * CLOCK_BLOCK
+    # the first message after the jump: jitter only ever raises a latency, so a rise shows in
+    # the floor of the messages from there on, a fall in the message itself
+    near = d[lo:lo + 3 * CLOCK_BLOCK]
+    if step[k] > 0:
+        moved = np.lib.stride_tricks.sliding_window_view(near, CLOCK_BLOCK).min(axis=1) > floor[k] + limit
+    else:
+        moved = near < floor[k] - limit
+    i = lo + int(np.argmax(moved))
+    size = abs(step[k])
+    if step[k] > 0:
+        raise DataError(f"{where}, message {i}: the source time stamp goes backwards by {size:.3f} s "
+                        f"(more than {MAX_CLOCK_STEP:g} sample periods): the source's clock jumped")
+    raise DataError(f"{where}, message {i}: the receive time goes backwards by {size:.3f} s against the "
+                    f"source time stamps (more than {MAX_CLOCK_STEP:g} sample periods): the host's clock "
+                    "jumped back or the source's jumped forward")

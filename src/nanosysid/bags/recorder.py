@@ -33,6 +33,7 @@ import pandas as pd
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from scipy.spatial.transform import Rotation, Slerp
 
+from nanosysid.bags.extract import rotate
 from nanosysid.bags.messages import typestore
 from nanosysid.sim.world import World
 from nanosysid.sim.simulator import NoiseConfig, RawRecord, interp_columns, perturb_attitude, velocity_drift
@@ -171,6 +172,8 @@ def record_flight(
     v_est = v_true + velocity_drift(n, noise, 1.0 / cfg.onboard_rate, rng) + rng.normal(scale=noise.vel, size=(n, 3))
     p_est = p_true + rng.normal(scale=cfg.odom_pos_noise, size=(n, 3))
     q_est = perturb_attitude(q_true, noise.att, rng)
+    if topics["odom"].get("velocity_frame") == "body":  # the ROS convention: twist in child_frame_id
+        v_est = rotate(q_est * np.array([-1.0, -1.0, -1.0, 1.0]), v_est)
     T = store.types
     Odometry, Twist, TwistCov, PoseCov, Vec3 = (T["nav_msgs/msg/Odometry"], T["geometry_msgs/msg/Twist"],
                                               T["geometry_msgs/msg/TwistWithCovariance"],
