@@ -168,3 +168,34 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     assert scores.n_windows == 300 - 20 and all(np.isfinite(v) for v in scores.simerr.values())
     raw = torch.load(tmp_path / "gru.pt", weights_only=True)
     assert raw["network"] == {"name": "gru", "options": {"hidden": 48}}
+
+
+@pytest.mark.parametrize("override, message", [
+    ("eval.horizon=abc", r"eval\.horizon must be a positive whole number, got 'abc'"),
+    ("eval.horizon=2.5", r"eval\.horizon must be a positive whole number, got 2\.5"),
+    ("eval.horizon=true", r"eval\.horizon must be a positive whole number, got True"),
+    ("eval.horizon=-5", r"eval\.horizon must be a positive whole number, got -5"),
+    ("eval.batch_size=0", r"eval\.batch_size must be a positive whole number, got 0"),
+    ("models.physics.substeps=0", r"models\.physics\.substeps must be a positive whole number, got 0"),
+    ("models.physics.dt=-0.01", r"models\.physics\.dt must be a positive number, got -0\.01"),
+    ("vehicle.mass=heavy", r"vehicle\.mass must be a positive number, got 'heavy'"),
+    ("vehicle.k_f=nan", r"vehicle\.k_f must be a positive number, got nan"),
+    ("vehicle.k_f=-3.7e-8", r"vehicle\.k_f must be a positive number, got -3\.7e-08"),
+    ("recording.filter.velocity=60", r"recording\.filter\.velocity = 60 Hz is at or above the Nyquist frequency 50 Hz"),
+    ("recording.sync.rate=0", r"recording\.sync\.rate must be a positive number, got 0"),
+    ("recording.sync.max_lag=-1", r"recording\.sync\.max_lag must be a positive number, got -1"),
+])
+def test_bad_setting_values_are_one_clear_error(override, message):
+    with pytest.raises(config.ConfigError, match=rf"params\.yaml with overrides: {message}"):
+        config.load_params([override], path=ROOT / "params.yaml")
+
+
+def test_stage_reports_a_bad_setting_without_traceback(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "stages.evaluate", "physics", "eval.horizon=abc"], cwd=ROOT,
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.strip().splitlines() == ["error: params.yaml with overrides: eval.horizon must be a positive whole "
+                                             "number, got 'abc'"]

@@ -114,3 +114,48 @@ def test_no_validation_flights_is_one_clear_error(flights, tmp_path):
 
     with pytest.raises(ConfigError, match=r"val_runs \[7\]; runs present: \[1, 2, 3\]"):
         train_model(NETWORKS["residual"], flights, tmp_path / "x.pt", progress=False, **{**QUICK, "val_runs": [7]})
+
+
+def test_bad_checkpoints_are_one_clear_error(tmp_path):
+    import pickle
+
+    from nanosysid.errors import ConfigError, DataError
+
+    good = tmp_path / "good.pt"
+    save_checkpoint(make("residual"), NETWORKS["residual"], good)
+    data = good.read_bytes()
+    cases = {
+        "missing.pt": (None, r"missing\.pt: no such checkpoint"),
+        "truncated.pt": (data[: len(data) // 2], r"truncated\.pt: not a readable checkpoint, the file is damaged"),
+        "tensor.pt": ("tensor", r"tensor\.pt: not a nanosysid model checkpoint .* holds a bare Tensor"),
+        "pickled.pt": ("pickle", r"pickled\.pt: the checkpoint holds Python objects .* refused"),
+        "sizes.pt": ("sizes", r"sizes\.pt: the weights do not fit the network it names \(mlp\)"),
+        "nonet.pt": ("nonet", r"nonet\.pt: field 'network' is missing"),
+    }
+    for name, (content, message) in cases.items():
+        path = tmp_path / name
+        if content == "tensor":
+            torch.save(torch.zeros(3), path)
+        elif content == "pickle":
+            path.write_bytes(pickle.dumps({"format": "x", "obj": functools.partial(print, 1)}))
+            torch.save({"format": "nanosysid-model-2", "callable": functools.partial(print, 1)}, path)
+        elif content in ("sizes", "nonet"):
+            ckpt = torch.load(good, weights_only=True)
+            if content == "sizes":
+                ckpt["network"] = {"name": "mlp", "options": {"hidden": [64, 64]}}
+            else:
+                del ckpt["network"]
+            torch.save(ckpt, path)
+        elif content is not None:
+            path.write_bytes(content)
+        with pytest.raises(DataError, match=message) as err:
+            load_checkpoint(path)
+        assert "weights_only=False" not in str(err.value)
+    # an LSTM's checkpoint where the config names the residual MLP
+    lstm = tmp_path / "lstm.pt"
+    save_checkpoint(make("lstm"), NETWORKS["lstm"], lstm)
+    with pytest.raises(ConfigError, match=r"lstm\.pt: holds a lstm network, but the model's config names mlp"):
+        models.build_from_options({"kind": "learned", "checkpoint": str(lstm), "network": NETWORKS["residual"]})
+    with pytest.raises(ConfigError, match=r"good\.pt: the network has no physics base, but the model's config gives one"):
+        models.build_from_options({"kind": "learned", "checkpoint": str(good), "network": NETWORKS["phys_res"],
+                                   "physics": {"dt": 0.01}})

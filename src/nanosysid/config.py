@@ -13,6 +13,8 @@ Command line::
 from __future__ import annotations
 
 import argparse
+import fnmatch
+import math
 import sys
 import tempfile
 from pathlib import Path
@@ -22,7 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from nanosysid.errors import ConfigError
 
-__all__ = ["compose", "compose_text", "load_params", "apply_overrides"]
+__all__ = ["compose", "compose_text", "load_params", "apply_overrides", "check_values"]
 
 # relative to the working directory: stages run from the root of the project they belong to
 # (DVC runs them there, also in the temporary copies of `dvc exp run`)
@@ -78,7 +80,86 @@ def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> 
     cfg = OmegaConf.load(path)
     cfg = apply_overrides(cfg, overrides)
     OmegaConf.resolve(cfg)
+    check_values(OmegaConf.to_container(cfg), f"{path}{' with overrides' if overrides else ''}")
     return cfg
+
+
+# The kinds of the numeric settings, by dotted key (``*`` stands for any part of a key).
+# A setting missing from the config is not checked here; its user says so.
+_POSITIVE = "a positive number"
+_COUNT = "a positive whole number"
+_NONNEG = "a number >= 0"
+_NONNEG_COUNT = "a whole number >= 0"
+_RULES: list[tuple[str, str]] = [
+    ("*vehicle.mass", _POSITIVE), ("*vehicle.inertia", _POSITIVE), ("*vehicle.arm", _POSITIVE),
+    ("*vehicle.k_f", _POSITIVE), ("*vehicle.k_m", _POSITIVE), ("*vehicle.gravity", _POSITIVE),
+    ("models.*.dt", _POSITIVE), ("models.*.substeps", _COUNT), ("discover.oracle.dt", _POSITIVE),
+    ("discover.oracle.substeps", _COUNT),
+    ("models.*.train.horizon", _COUNT), ("models.*.train.stride", _COUNT), ("models.*.train.batch_size", _COUNT),
+    ("models.*.train.epochs", _COUNT), ("models.*.train.patience", _NONNEG_COUNT),
+    ("models.*.train.optimizer.lr", _POSITIVE),
+    ("eval.horizon", _COUNT), ("eval.batch_size", _COUNT), ("eval.table_horizons", _COUNT),
+    ("recording.sync.rate", _POSITIVE), ("recording.sync.max_lag", _POSITIVE),
+    ("recording.sync.xcorr_band", _POSITIVE), ("recording.sync.xcorr_step", _POSITIVE),
+    ("recording.sync.min_samples", _COUNT), ("recording.sync.warn_gap", _NONNEG_COUNT),
+    ("recording.sync.warn_loss", _NONNEG),
+    ("recording.filter.rate", _POSITIVE), ("recording.filter.order", _COUNT),
+    ("recording.filter.position", _POSITIVE), ("recording.filter.velocity", _POSITIVE),
+    ("recording.filter.acceleration", _POSITIVE), ("recording.filter.motors", _POSITIVE),
+    ("recording.filter.quaternion", _POSITIVE), ("recording.filter.max_gap", _NONNEG_COUNT),
+    ("sim.runs.*", _NONNEG_COUNT), ("sim.effects.*", _NONNEG), ("models.oracle.effects.*", _NONNEG),
+    ("sim.flight.*_rate", _POSITIVE), ("sim.flight.motor_tau", _POSITIVE), ("sim.flight.noise.*", _NONNEG),
+    ("sim.recorder.*_rate", _POSITIVE),
+    ("identify.savgol_window", _COUNT), ("identify.savgol_order", _NONNEG_COUNT),
+    ("discover.savgol_window", _COUNT), ("discover.savgol_order", _NONNEG_COUNT),
+    ("discover.threshold", _NONNEG), ("discover.delay_step", _POSITIVE), ("discover.delay_max", _NONNEG),
+    ("export.onnx_samples", _COUNT), ("export.onnx_tolerance", _POSITIVE),
+    ("export.mcu.start", _NONNEG_COUNT), ("export.mcu.steps", _COUNT), ("export.mcu.tolerance", _POSITIVE),
+    ("visualize.stride", _COUNT),
+]
+
+
+def _fits(value: object, kind: str) -> bool:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        return False
+    if kind in (_COUNT, _NONNEG_COUNT) and not isinstance(value, int):
+        return False
+    return value > 0 if kind in (_POSITIVE, _COUNT) else value >= 0
+
+
+def _leaves(node: object, key: str = ""):
+    if isinstance(node, dict):
+        for k, v in node.items():
+            yield from _leaves(v, f"{key}.{k}" if key else str(k))
+    else:
+        yield key, node
+
+
+def check_values(cfg: dict, where: str = "params.yaml") -> None:
+    """Refuse a setting of the wrong kind (``eval.horizon=abc``, ``substeps=0``,
+    ``vehicle.mass=heavy``) or a filter cut-off at or above the Nyquist frequency.
+
+    Raises:
+        ConfigError: naming the key, the value and what it must be.
+    """
+    for key, value in _leaves(cfg):
+        kind = next((k for pattern, k in _RULES if fnmatch.fnmatchcase(key, pattern)), None)
+        if kind is None:
+            continue
+        for v in value if isinstance(value, list) else [value]:
+            if not _fits(v, kind):
+                raise ConfigError(f"{where}: {key} must be {kind}, got {value!r}")
+    filt = (cfg.get("recording") or {}).get("filter") or {}
+    nyquist = filt.get("rate", 0) / 2
+    for band in ("position", "velocity", "acceleration", "motors", "quaternion"):
+        if band in filt and filt[band] >= nyquist:
+            raise ConfigError(f"{where}: recording.filter.{band} = {filt[band]} Hz is at or above the Nyquist "
+                              f"frequency {nyquist:g} Hz of recording.filter.rate")
+    band = ((cfg.get("recording") or {}).get("sync") or {}).get("xcorr_band")
+    rate = ((cfg.get("recording") or {}).get("sync") or {}).get("rate", 0)
+    if band is not None and (len(band) != 2 or not band[0] < band[1] < rate / 2):
+        raise ConfigError(f"{where}: recording.sync.xcorr_band must be two frequencies, low < high < "
+                          f"{rate / 2:g} Hz (half recording.sync.rate), got {band!r}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -54,7 +54,10 @@ def as_tensor(a, dtype: torch.dtype) -> Tensor:
     """A tensor of ``dtype`` from a numpy array or tensor, without copying when possible."""
     if isinstance(a, Tensor):
         return a.to(dtype)
-    return torch.from_numpy(np.ascontiguousarray(a)).to(dtype)
+    a = np.ascontiguousarray(a)
+    if not a.flags.writeable:  # the benchmark hands predictors read-only views; torch needs its own
+        return torch.tensor(a, dtype=dtype)
+    return torch.from_numpy(a).to(dtype)
 
 
 class StepPredictor:

@@ -78,7 +78,16 @@ def _learned(*, checkpoint: str, **training: Any) -> Predictor:
     from nanosysid.models.learned import LearnedPredictor, load_checkpoint
 
     model, ckpt = load_checkpoint(checkpoint)
-    return LearnedPredictor(model, name=ckpt["network"]["name"])
+    # a checkpoint of another model (an LSTM's where a residual MLP is configured) is refused
+    net = ckpt["network"]["name"]
+    wanted = (training.get("network") or {}).get("name")
+    if wanted is not None and wanted != net:
+        raise ConfigError(f"{checkpoint}: holds a {net} network, but the model's config names {wanted}")
+    if "network" in training and ("physics" in training) != (ckpt["physics"] is not None):
+        said = ("has a physics base, but the model's config has no physics key" if ckpt["physics"] is not None
+                else "has no physics base, but the model's config gives one")
+        raise ConfigError(f"{checkpoint}: the network {said}")
+    return LearnedPredictor(model, name=net)
 
 
 def _discovered(*, model: str) -> Predictor:
@@ -142,10 +151,10 @@ def build_from_options(options: dict[str, Any]) -> Predictor:
     """The predictor of a ``models.<name>`` block as plain data (``kind`` plus options).
 
     ``artifact`` names the file or folder the model is made from, for DVC's dependency
-    tracking, and ``network``/``train`` only matter to training; neither is an option of the
-    predictor.
+    tracking, and ``train`` only matters to training; neither is an option of the predictor.
+    A learned model's ``network`` and ``physics`` are checked against its checkpoint.
     """
-    opts = {k: v for k, v in options.items() if k not in ("kind", "artifact", "network", "train")}
+    opts = {k: v for k, v in options.items() if k not in ("kind", "artifact", "train")}
     return predictor(options["kind"], **opts)
 
 

@@ -143,20 +143,51 @@ def build_model(network: dict[str, Any], physics: PhysicsStep | None = None) -> 
 
 
 def load_checkpoint(path: str | Path) -> tuple[SequenceModel, dict[str, Any]]:
-    """The one loader of learned models (evaluation, export and visualisation use it)."""
-    from nanosysid.errors import DataError
+    """The one loader of learned models (evaluation, export and visualisation use it).
 
-    ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    Raises:
+        DataError: a missing, unreadable, foreign or inconsistent checkpoint, named with the
+            problem; a payload that would need code to unpickle is refused, never run.
+    """
+    import pickle
+    import zipfile
+
+    from nanosysid.errors import ConfigError, DataError
+
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such checkpoint (train the model first: `dvc repro train@<model>`)")
+    try:
+        ckpt = torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError:
+        raise DataError(f"{path}: the checkpoint holds Python objects beyond tensors and plain data; it is "
+                        "refused, since loading it would run its code. Save models with "
+                        "nanosysid.models.learned.save_checkpoint") from None
+    except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError) as e:
+        raise DataError(f"{path}: not a readable checkpoint, the file is damaged or truncated "
+                        f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
-        raise DataError(f"{path}: not a nanosysid model checkpoint (format {FORMAT})")
+        found = f"format {ckpt.get('format')!r}" if isinstance(ckpt, dict) else f"a bare {type(ckpt).__name__}"
+        raise DataError(f"{path}: not a nanosysid model checkpoint (format {FORMAT}); it holds {found}")
+    for key, kind in (("network", dict), ("physics", (dict, type(None))), ("state_dict", dict)):
+        if not isinstance(ckpt.get(key), kind):
+            raise DataError(f"{path}: field {key!r} is missing or malformed")
     net = ckpt["network"]
-    physics = None
-    if ckpt["physics"] is not None:
-        p = ckpt["physics"]
-        physics = PhysicsStep(Vehicle.from_mapping(p["vehicle"]), dt=p["dt"], substeps=p["substeps"],
-                              angular_dynamics=p["angular_dynamics"])
-    model = build_model(net, physics)
-    model.load_state_dict(ckpt["state_dict"])
+    try:
+        physics = None
+        if ckpt["physics"] is not None:
+            p = ckpt["physics"]
+            physics = PhysicsStep(Vehicle.from_mapping(p["vehicle"]), dt=p["dt"], substeps=p["substeps"],
+                                  angular_dynamics=p["angular_dynamics"])
+        model = build_model(net, physics)
+    except (ConfigError, KeyError, TypeError, ValueError) as e:
+        raise DataError(f"{path}: the network or physics it describes cannot be built ({e})") from None
+    try:
+        model.load_state_dict(ckpt["state_dict"])
+    except RuntimeError as e:
+        first = str(e).splitlines()
+        raise DataError(f"{path}: the weights do not fit the network it names ({net.get('name')}): "
+                        f"{' '.join(line.strip() for line in first[:3])}") from None
     model.eval()
     return model, ckpt
 
