@@ -8,7 +8,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from nanosysid import benchmark
-from nanosysid.dataio import atomic_file
+from nanosysid.dataio import atomic_dir
 from nanosysid.models import build_from_options, step_cost
 from nanosysid.report.tables import results_table_md
 from stages.common import model_options, run_stage
@@ -38,13 +38,12 @@ def main(cfg: DictConfig, name: str) -> benchmark.Scores:
     # table horizons beyond a shortened evaluation horizon have no value to show
     table_h = [h for h in cfg.eval.table_horizons if h <= horizon]
     full = {"model": name, **scores.to_dict()}
-    with atomic_file(out / "scores.json") as tmp:
-        tmp.write_text(json.dumps(full, indent=1, allow_nan=False) + "\n")
-    with atomic_file(out / "metrics.json") as tmp:
-        cost = step_cost(options["kind"], predict)
-        tmp.write_text(json.dumps(metrics_payload(scores, table_h, cost), indent=1, allow_nan=False) + "\n")
-    with atomic_file(out / "table.md") as tmp:
-        tmp.write_text(results_table_md({name: scores}, table_h))
+    cost = step_cost(options["kind"], predict)
+    with atomic_dir(out, inputs=[cfg.paths.split]) as tmp:  # the three files replaced as a set
+        (tmp / "scores.json").write_text(json.dumps(full, indent=1, allow_nan=False) + "\n")
+        (tmp / "metrics.json").write_text(json.dumps(metrics_payload(scores, table_h, cost), indent=1,
+                                                     allow_nan=False) + "\n")
+        (tmp / "table.md").write_text(results_table_md({name: scores}, table_h))
     log.info("evaluate %s: %d windows, SimErr %s", name, scores.n_windows,
              ", ".join(f"{k} {v:.4g}" for k, v in scores.simerr.items()))
     return scores

@@ -8,6 +8,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from nanosysid import benchmark
+from nanosysid.dataio import atomic_dir
 from nanosysid.errors import ConfigError
 from nanosysid.identify import identified_vehicle
 from nanosysid.models.physics import PhysicsStep
@@ -37,14 +38,16 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
         raise ConfigError(f"models.{name}: not a learned model (kind {m['kind']!r})")
     t = cfg.models[name].train
     bench = benchmark.load(cfg.paths.split, horizon=int(t.horizon))
-    log_dir = Path(cfg.paths.train_logs) / name
-    summary = train_model(
-        network_spec(m), bench.train, Path(m["checkpoint"]), physics=physics_base(m),
-        optimizer=instantiate(t.optimizer), scheduler=instantiate(t.scheduler) if t.scheduler else None,
-        horizon=int(t.horizon), stride=int(t.stride), batch_size=int(t.batch_size), epochs=int(t.epochs),
-        patience=int(t.patience), seed=int(t.seed), val_runs=plain(t.val_runs), log_dir=log_dir,
-        accelerator=str(cfg.trainer.accelerator), devices=plain(cfg.trainer.devices))
-    (log_dir / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+    # the training curves are written beside the old ones and swapped in whole at the end, so
+    # a killed run leaves the previous model's logs, not a mixture
+    with atomic_dir(Path(cfg.paths.train_logs) / name, inputs=[cfg.paths.split]) as log_dir:
+        summary = train_model(
+            network_spec(m), bench.train, Path(m["checkpoint"]), physics=physics_base(m),
+            optimizer=instantiate(t.optimizer), scheduler=instantiate(t.scheduler) if t.scheduler else None,
+            horizon=int(t.horizon), stride=int(t.stride), batch_size=int(t.batch_size), epochs=int(t.epochs),
+            patience=int(t.patience), seed=int(t.seed), val_runs=plain(t.val_runs), log_dir=log_dir,
+            accelerator=str(cfg.trainer.accelerator), devices=plain(cfg.trainer.devices))
+        (log_dir / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     return summary
 
 

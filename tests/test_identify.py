@@ -56,3 +56,22 @@ def test_bad_identified_parameters_are_one_clear_error(tmp_path, content, proble
     with pytest.raises(DataError, match=re.escape(problem)) as e:
         identify.identified_vehicle(Vehicle(), path)
     assert str(path) in str(e.value)
+
+
+def test_identify_stage_on_an_empty_training_folder(tmp_path):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from nanosysid.dataio import write_flight_csv
+
+    root = Path(__file__).resolve().parents[1]
+    (tmp_path / "split" / "train").mkdir(parents=True)
+    (flight,) = synthetic.synthetic_flights(["melon_20250601_run1"], 300, noise=0.0, seed=1)
+    write_flight_csv(flight, tmp_path / "split" / "test" / "melon_20250601_run1.csv")
+    out = tmp_path / "identified"
+    r = subprocess.run([sys.executable, "-m", "stages.identify", f"paths.split={tmp_path / 'split'}",
+                        f"identify.out_dir={out}"], cwd=root, capture_output=True, text=True)
+    assert r.returncode == 2 and "Traceback" not in r.stderr
+    assert r.stderr.strip() == f"error: {tmp_path / 'split' / 'train'}: no flight CSV files to fit k_F and k_M on"
+    assert not out.exists()

@@ -345,3 +345,34 @@ def test_a_stage_never_replaces_its_input_or_a_folder_it_did_not_write(tiny, tmp
     err = capsys.readouterr().err
     assert err.count("error:") == 1 and str(work / onto) in err
     assert sorted(str(p.relative_to(work)) for p in work.rglob("*")) == before
+
+
+def test_an_interrupted_training_or_evaluation_keeps_the_previous_outputs_whole(tiny, tmp_path, monkeypatch):
+    work = tmp_path / "w"
+    shutil.copytree(tiny, work, ignore=shutil.ignore_patterns("params.yaml", "rerun"))
+    if not (work / "eval" / "physics" / "scores.json").exists():
+        assert run(evaluate, work, name="physics") == 0
+
+    def snapshot(folder):
+        return {str(p.relative_to(work)): p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+    logs, ckpt, scores = work / "train" / "residual", work / "models" / "residual", work / "eval" / "physics"
+    before = snapshot(logs), snapshot(ckpt), snapshot(scores)
+
+    def killed_training(*args, log_dir, **kw):
+        # dvclive has written the first epoch of the new run when the run is killed
+        (log_dir / "metrics.json").write_text('{"train": {"loss": 1.0}}')
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(train, "train_model", killed_training)
+    with pytest.raises(KeyboardInterrupt):
+        run(train, work, name="residual")
+
+    def killed_table(*args, **kw):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(evaluate, "results_table_md", killed_table)
+    with pytest.raises(KeyboardInterrupt):
+        run(evaluate, work, "eval.horizon=20", name="physics")  # scores.json would change
+    assert (snapshot(logs), snapshot(ckpt), snapshot(scores)) == before
+    assert not [p for p in work.rglob(".*.tmp")]
