@@ -149,20 +149,27 @@ def test_body_drag_is_quadratic():
 
 
 def test_com_offset_gives_a_thrust_torque():
+    """Worked by hand: the centre of mass 1.5 mm ahead of and 1.0 mm right of the rotors' centre,
+    the hover thrust T = 0.045 kg * 9.81 = 0.44145 N acts 1.5 mm behind it (nose-heavy: the nose
+    drops, a positive torque about +y) and 1.0 mm to its left (the right side drops, a positive
+    torque about +x): tau = (1.0e-3 T, 1.5e-3 T, 0) = (4.4145e-4, 6.62175e-4, 0) N m."""
+    assert fx.COM_OFFSET == (1.5e-3, -1.0e-3, 0.0)
     _, t = wrench("com_offset")
-    T = V.mass * V.gravity
-    rx, ry, _ = fx.COM_OFFSET
-    assert torch.allclose(t[0], torch.tensor([-ry * T, rx * T, 0.0], dtype=torch.float64))
-    assert 1e-4 < t[0].norm() < 2e-3  # N m: comparable to the attitude controller's authority
+    assert torch.allclose(t[0], torch.tensor([4.4145e-4, 6.62175e-4, 0.0], dtype=torch.float64), rtol=1e-9, atol=1e-15)
 
 
 def test_motor_asymmetry_keeps_collective_thrust_and_tilts():
+    """Worked by hand: at hover each rotor gives T/4 = 0.1103625 N times (1 + d_i), d = (+3.0,
+    -2.0, +2.5, -3.5) %, at (x, y) = L (+1, -1), (-1, -1), (-1, +1), (+1, +1), L = 35.35 mm:
+    tau_x = sum y_i F_i = L 0.1103625 (-d1 - d2 + d3 + d4) = -7.80262875e-5 N m,
+    tau_y = -sum x_i F_i = -L 0.1103625 (d1 - d2 - d3 + d4) = +3.901314375e-5 N m;
+    each rotor's drag torque k_M (1 + d_i) Omega^2 = 2.29328e-4 (1 + d_i) N m turns the body against
+    its spin (M1, M3 counter-clockwise): tau_z = -(d1 - d2 + d3 - d4) 2.29328e-4 = -2.52261381e-5 N m."""
+    assert fx.MOTOR_ASYMMETRY == (0.030, -0.020, 0.025, -0.035)
     f, t = wrench("motor_asymmetry")
     assert abs(f[0, 2]) < 1e-12  # zero-mean spread: hover thrust unchanged
-    d = torch.tensor(fx.MOTOR_ASYMMETRY, dtype=torch.float64)
-    M = dynamics.mixer_matrix(k_f=V.k_f, k_m=V.k_m, arm=V.arm)
-    expected = (HOVER**2 * d) @ M.T
-    assert torch.allclose(t[0], expected[0, 1:]) and t[0, :2].norm() > 5e-5
+    expected = torch.tensor([-7.80262875e-5, 3.901314375e-5, -2.5226138104838704e-05], dtype=torch.float64)
+    assert torch.allclose(t[0], expected, rtol=1e-6, atol=0)
 
 
 def test_rotor_inertia_yaw_reaction_and_gyroscopic_torque():
