@@ -39,3 +39,52 @@ def test_update_replaces_only_the_section(tmp_path):
     assert "old text" not in text and "| x | 1.0 |" in text and "](docs/fig.png)" in text and "Cost" not in text
     assert (tmp_path / "docs" / "fig.png").read_bytes() == fig.read_bytes()
     assert not readme.update(md, report, fig, tmp_path / "docs" / "fig.png")  # current: unchanged
+
+
+def readme_table():
+    text = (ROOT / "README.md").read_text()
+    part = text[text.index(readme.BEGIN):text.index(readme.END)]
+    lines = [line for line in part.splitlines() if line.startswith("|")]
+    head = [c.strip() for c in lines[0].strip("|").split("|")]
+    rows = {}
+    for line in lines[2:]:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        rows[cells[0]] = cells[1:]
+    return part, lines, head, rows
+
+
+def test_readme_results_table_reads_right():
+    """The table's own text: one number per cell, the bold one the least of its column among
+    the models (the oracle is a limit, not a model), and the physics model, which holds the
+    angular velocity constant, scoring the naive model's angular-velocity error."""
+    _, _, head, rows = readme_table()
+    assert head[0] == "Model" and len(head) == 17
+    assert {"naive", "physics", "physics_full", "oracle (physical limit)", "residual", "phys_res", "lstm"} <= set(rows)
+    values = {m: [float(c.strip("*")) for c in cells] for m, cells in rows.items()}
+    assert all(len(v) == 16 for v in values.values())
+    models = [m for m in rows if not m.startswith("oracle")]
+    for j in range(16):
+        best = min(values[m][j] for m in models)
+        bold = [m for m in rows if rows[m][j].startswith("**")]
+        assert bold and all(values[m][j] == best for m in bold), (head[j + 1], bold)
+    assert rows["physics"][12:] == rows["naive"][12:]
+    # the sum over 50 horizons is at least the error at the 50th
+    for m, v in values.items():
+        for q in range(4):
+            assert v[4 * q + 3] >= v[4 * q + 2], m
+
+
+def test_readme_table_is_the_report_table_when_the_report_is_here():
+    """Where the report stage's output is present and is the one the stamp names, the README
+    shows its table verbatim."""
+    import pytest
+
+    report = ROOT / "reports" / "benchmark.md"
+    part, lines, _, _ = readme_table()
+    stamped = dict(re.findall(r"(\S+) md5 ([0-9a-f]{32})", part))
+    if not report.exists() or hashlib.md5(report.read_bytes()).hexdigest() != stamped["reports/benchmark.md"]:
+        pytest.skip("reports/benchmark.md is not the stamped report (run `make repro`)")
+    text = report.read_text()
+    start = text.index("## Multi-step prediction")
+    table = [line for line in text[start:text.index("\n## ", start + 1)].splitlines() if line.startswith("|")]
+    assert lines == table
