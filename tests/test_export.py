@@ -197,19 +197,29 @@ def test_small_model_runs_on_the_emulated_stm32(tmp_path):
     toolchain_or_skip()
     m = small_model("lstm")
     ex = learned_step(LearnedPredictor(m), "lstm")
-    y_in, u_in, _ = flight_inputs(ex, n=8)
+    y_in, u_in, f = flight_inputs(ex, n=8)
     mcu.write_sources(tmp_path, ex.c, y_in, u_in)
     size = mcu.build(tmp_path)
     run = mcu.run(tmp_path, ex.ny)
     ref = ex.teacher_forced(y_in, u_in)
-    scale = np.maximum(np.abs(ref).max(axis=0), 1e-6)
-    assert run.outputs.shape == (8, 12) and (np.abs(run.outputs - ref) / scale).max() < 1e-5
+    assert run.outputs.shape == (8, 12) and mcu.range_relative_diff(run.outputs, ref, ex.outputs_in(f.y)) < 1e-5
     assert run.steps == 8
     # 4 gates x 4 units x (16 + 4) inputs: some hundreds of multiply-adds, a few instructions each
     assert 500 < run.instructions_per_step < 5000 and run.instructions_total > 8 * run.instructions_per_step
     assert 0 < size["text"] < 8192 and size["stack"] > 0
     # the count is deterministic
     assert mcu.run(tmp_path, ex.ny).instructions_per_step == run.instructions_per_step
+
+
+def test_mcu_difference_is_relative_to_each_outputs_range():
+    """Height between 1.0 and 2.0 m (range 1 m) off by 1e-6 m: 1e-6, not 1e-6 / 2.0 as against
+    its largest value; qw between 0.98 and 1.0 off by 1e-7: 5e-6, not 1e-7; a channel that
+    never moves is judged in its own units."""
+    samples = np.array([[1.0, 0.98, 3.0], [2.0, 1.0, 3.0], [1.5, 0.99, 3.0]])
+    ref = np.array([[1.5, 0.99, 3.0]])
+    assert mcu.range_relative_diff(ref + [[1e-6, 0.0, 0.0]], ref, samples) == pytest.approx(1e-6)
+    assert mcu.range_relative_diff(ref + [[0.0, 1e-7, 0.0]], ref, samples) == pytest.approx(5e-6)
+    assert mcu.range_relative_diff(ref + [[0.0, 0.0, 2e-7]], ref, samples) == pytest.approx(2e-7)
 
 
 def test_missing_toolchain_is_one_clear_message(monkeypatch):

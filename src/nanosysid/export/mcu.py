@@ -23,7 +23,7 @@ from nanosysid.errors import ToolchainError
 from nanosysid.export.cgen import flit
 from nanosysid.export.csource import CModel
 
-__all__ = ["ToolchainError", "require_toolchain", "write_sources", "build", "run", "McuRun",
+__all__ = ["ToolchainError", "require_toolchain", "range_relative_diff", "write_sources", "build", "run", "McuRun",
            "CFLAGS", "CLOCK_HZ", "INSTALL_HINT"]
 
 FIRMWARE = Path(__file__).with_name("firmware")
@@ -35,6 +35,15 @@ TOOLS = {"arm-none-eabi-gcc": "gcc-arm-none-eabi", "arm-none-eabi-size": "binuti
          "arm-none-eabi-nm": "binutils-arm-none-eabi", "qemu-system-arm": "qemu-system-arm", "gcc": "gcc"}
 INSTALL_HINT = ("apt-get install -y --no-install-recommends gcc-arm-none-eabi libnewlib-arm-none-eabi "
                 "qemu-system-arm gcc libc6-dev   (as root; `make toolchain` does it)")
+
+
+def range_relative_diff(got: np.ndarray, ref: np.ndarray, samples: np.ndarray) -> float:
+    """Largest ``|got - ref|`` of an output channel over that channel's range (max - min) in
+    ``samples`` (N, ny), e.g. the test flight: an output far from zero (z near 1.5 m, qw near 1)
+    is judged on its variation, not on its offset."""
+    span = samples.max(axis=0) - samples.min(axis=0)
+    span = np.where(span > 0, span, 1.0)  # a channel that never moves is judged in its own units
+    return float((np.abs(np.asarray(got, np.float64) - ref) / span).max())
 
 
 def require_toolchain() -> None:
