@@ -1,0 +1,6 @@
+"""The pipeline's stages: one script each, run as ``python -m stages.<name>``."""
+
+from nanosysid import numerics
+
+# before torch and numpy are loaded: the same bytes on every x86 machine
+numerics.pin()

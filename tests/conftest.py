@@ -2,9 +2,13 @@ import os
 import sys
 from pathlib import Path
 
-import numpy as np
-import pytest
-import torch
+from nanosysid import numerics
+
+numerics.pin()  # before numpy and torch are loaded, as every stage does
+
+import numpy as np  # noqa: E402
+import pytest  # noqa: E402
+import torch  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 

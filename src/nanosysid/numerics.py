@@ -1,0 +1,67 @@
+"""Same bytes on every x86 machine: the numerical code paths that libraries choose by CPU, pinned.
+
+Floating-point results depend on the order of operations, and each numerical library picks its
+kernels by the CPU it finds: torch's element-wise and reduction kernels (portable, AVX2 or
+AVX-512), MKL's matrix products under torch, oneDNN, numpy's SIMD loops (``exp``, ``log``,
+``sin``, sums) and OpenBLAS under numpy and scipy. Two machines of the same kind then write
+different bytes, and a DVC cache shared between them never hits.
+
+:func:`pin` sets each library's own switch to one code path that every x86-64 CPU runs. The
+libraries read these switches when they are first loaded, so :func:`pin` must run before torch,
+numpy or scipy is imported: every stage does so (``stages/__init__.py``), as do the tests and
+the benchmarks; the Makefile exports the same environment (``python -m nanosysid.numerics``
+prints it). What is pinned, and what is not, is in the README ("Reproducibility").
+"""
+
+from __future__ import annotations
+
+import os
+import platform
+import sys
+
+__all__ = ["PINNED", "THREADS", "pin", "pinned_environment"]
+
+# Threads split sums (a matrix product's, a reduction's) into partial sums whose order sets the
+# last bits: the count is fixed, whatever the machine's cores; NANOSYSID_THREADS changes it (and
+# with it the bytes of trained models).
+THREADS = os.environ.get("NANOSYSID_THREADS", "2")
+
+PINNED: dict[str, str] = {
+    "OMP_NUM_THREADS": THREADS,
+    "MKL_NUM_THREADS": THREADS,
+    # torch's CPU kernels: the portable build, not the AVX2 or AVX-512 one
+    "ATEN_CPU_CAPABILITY": "default",
+    # MKL (torch's matrix products): conditional numerical reproducibility, one code path on every x86
+    "MKL_CBWR": "COMPATIBLE",
+    # oneDNN (some of torch's CPU operators): no instructions beyond SSE4.1
+    "ONEDNN_MAX_CPU_ISA": "SSE41",
+    # numpy's SIMD loops: the baseline (x86-64-v2) only, none of the dispatched AVX2/AVX-512 ones
+    "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
+    # OpenBLAS under numpy and scipy: the Nehalem kernels (SSE4.2), which every x86-64-v2 CPU runs
+    "OPENBLAS_CORETYPE": "Nehalem",
+}
+
+
+def pinned_environment() -> dict[str, str]:
+    """The variables :func:`pin` sets on this machine (none of the x86 ones elsewhere)."""
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        return {k: PINNED[k] for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "ATEN_CPU_CAPABILITY")}
+    return dict(PINNED)
+
+
+def pin() -> None:
+    """Set :data:`PINNED` in this process's environment, overriding what the caller had.
+
+    Raises:
+        RuntimeError: torch or numpy is already loaded, so the pin could not take effect.
+    """
+    env = pinned_environment()
+    late = [m for m in ("torch", "numpy") if m in sys.modules]
+    if late and any(os.environ.get(k) != v for k, v in env.items()):
+        raise RuntimeError(f"nanosysid.numerics.pin() runs after {' and '.join(late)} was imported; "
+                           "it must run first for the pinned code paths to take effect")
+    os.environ.update(env)
+
+
+if __name__ == "__main__":
+    print(" ".join(f"{k}='{v}'" for k, v in pinned_environment().items()))

@@ -1,0 +1,59 @@
+"""Same bytes whatever the CPU's kernel level, BLAS dispatch and thread count: the stages pin
+the numerical code paths (:mod:`nanosysid.numerics`)."""
+
+import hashlib
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from test_pipeline import TINY_SIM, tiny_args  # noqa: F401  (TINY_SIM is part of tiny_args)
+
+ROOT = Path(__file__).resolve().parents[1]
+STAGES = [("simulate", None), ("extract", None), ("sync", None), ("filter", None), ("split", None),
+          ("train", "residual")]
+
+
+def run_stages(root: Path, env: dict) -> subprocess.Popen:
+    args = tiny_args(root)
+    script = " && ".join(
+        " ".join([sys.executable, "-m", f"stages.{s}", *([name] if name else []), *(f"'{a}'" for a in args)])
+        for s, name in STAGES)
+    return subprocess.Popen(["bash", "-c", script], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.PIPE, text=True)
+
+
+def digests(root: Path) -> dict[str, str]:
+    return {str(p.relative_to(root)): hashlib.md5(p.read_bytes()).hexdigest()
+            for p in sorted(root.rglob("*")) if p.is_file() and p.name != "params.yaml"}
+
+
+@pytest.mark.slow
+def test_simulate_sync_and_train_give_the_same_bytes_under_other_cpu_settings(tmp_path, venv_env):
+    variants = {
+        # a caller whose torch would pick AVX2 kernels, MKL limited to AVX2, one thread
+        "a": {"ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2", "OMP_NUM_THREADS": "1"},
+        # the machine's own best kernels, AVX-512 where it has them, numpy's SIMD loops, more threads
+        "b": {"ATEN_CPU_CAPABILITY": "avx512", "MKL_ENABLE_INSTRUCTIONS": "AVX512", "OMP_NUM_THREADS": "4",
+              "NPY_DISABLE_CPU_FEATURES": "", "OPENBLAS_CORETYPE": "Haswell"},
+    }
+    procs = {}
+    for k, extra in variants.items():
+        (tmp_path / k).mkdir()
+        procs[k] = run_stages(tmp_path / k, {**venv_env, **extra})
+    for k, p in procs.items():
+        _, err = p.communicate(timeout=900)
+        assert p.returncode == 0, err[-2000:]
+    a, b = digests(tmp_path / "a"), digests(tmp_path / "b")
+    assert any(f.startswith("raw/") for f in a) and any(f.startswith("sync/") for f in a)
+    assert "models/residual/model.pt" in a
+    assert a == b, sorted(f for f in a if a[f] != b.get(f))
+
+
+def test_a_stage_runs_the_portable_kernels_whatever_the_caller_asked(venv_env):
+    code = "import stages, torch; print(torch.backends.cpu.get_cpu_capability(), torch.get_num_threads())"
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
+                         env={**venv_env, "ATEN_CPU_CAPABILITY": "avx2", "OMP_NUM_THREADS": "7"}).stdout.split()
+    assert out == ["DEFAULT", os.environ.get("NANOSYSID_THREADS", "2")]
