@@ -46,10 +46,12 @@ params: $(STAMP)
 
 repro: params toolchain
 	$(BIN)/dvc repro
-	$(BIN)/python -m nanosysid.report.readme
+	$(BIN)/python -m nanosysid.report.readme --sections results
 
+# every benchmark's figures into reports/bench.json, and from there into the README
 bench: $(STAMP)
-	@for f in benchmarks/*.py; do echo "== $$f"; PYTHONPATH=$(CURDIR) $(BIN)/python $$f || exit 1; done
+	PYTHONPATH=$(CURDIR) $(BIN)/python benchmarks/run.py
+	$(BIN)/python -m nanosysid.report.readme --sections bench
 
 clean-venv:
 	rm -rf $(VENV)

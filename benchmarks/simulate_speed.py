@@ -15,7 +15,7 @@ from nanosysid import sim
 RUNS = {"square": 4, "random": 4, "chirp": 4, "melon": 3}
 
 
-def main() -> None:
+def main() -> dict[str, float]:
     torch.set_num_threads(1)  # tiny tensors: threads only add overhead
     t0 = time.perf_counter()
     sim.simulate_flight("melon", 1)
@@ -29,6 +29,8 @@ def main() -> None:
     print(f"one Melon flight (65 s of flight):      {t_one:.1f} s")
     print(f"all {len(flights)} flights as one batch ({samples} samples): {t_all:.1f} s "
           f"({t_all / t_one:.2f}x one flight; one at a time about {sequential:.0f} s)")
+    return {"one_flight_s": t_one, "batch_s": t_all, "flights": len(flights), "batch_over_one": t_all / t_one,
+            "sequential_estimate_s": sequential}
 
 
 if __name__ == "__main__":

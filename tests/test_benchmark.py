@@ -169,3 +169,37 @@ def test_a_predictor_cannot_change_the_flight_it_is_scored_on():
 
     benchmark.evaluate(vandal, [flight], horizon=5)
     assert np.array_equal(flight.y, before)
+
+
+def test_template_layout_row_t_holds_the_prediction_started_at_t():
+    """A flight whose x is the sample index and a predictor that adds h to x at step h: row t
+    of the template frame holds x_pred_h{h} = t + h, the measurement h rows below. Scored the
+    template's way (row t against the measurement of row t + h - 1, after dropna) the error is
+    1 at every h; one row's shift makes it ours, 0."""
+    T, H = 120, 5
+    (flight,) = synthetic.synthetic_flights(["melon_x_run1"], T, noise=0.0, seed=0)
+    flight.y[:, 0] = np.arange(T, dtype=float)
+
+    def predict(y0, u):
+        out = np.repeat(np.asarray(y0)[:, None, :], u.shape[1], axis=1)
+        out[:, :, 0] += np.arange(1, u.shape[1] + 1)
+        return out
+
+    frame = benchmark.template_frame(predict, flight, horizon=H)
+    assert list(frame.columns[:14]) == ["t", "x", "y", "z", "vx", "vy", "vz", "qx", "qy", "qz", "qw", "wx", "wy", "wz"]
+    assert len(frame.columns) == 14 + 13 * H and "wz_pred_h5" in frame.columns
+    assert frame["x_pred_h3"][10] == 13.0 and frame["x_pred_h1"][T - H - 1] == T - H
+    assert frame["x_pred_h1"][T - H:].isna().all()
+
+    def template_mae(df, h):
+        pred = df[f"x_pred_h{h}"].to_numpy()
+        truth = df["x"].shift(-(h - 1)).to_numpy()
+        ok = ~np.isnan(pred) & ~np.isnan(truth)
+        return np.abs(pred[ok] - truth[ok]).mean()
+
+    shifted = frame.copy()
+    pred_cols = [c for c in frame.columns if "_pred_h" in c]
+    shifted[pred_cols] = frame[pred_cols].shift(1)
+    for h in (1, 3, 5):
+        assert template_mae(frame, h) == 1.0
+        assert template_mae(shifted, h) == 0.0

@@ -88,3 +88,13 @@ def test_readme_table_is_the_report_table_when_the_report_is_here():
     start = text.index("## Multi-step prediction")
     table = [line for line in text[start:text.index("\n## ", start + 1)].splitlines() if line.startswith("|")]
     assert lines == table
+
+
+def test_readme_run_times_are_the_bench_record():
+    """Every time the README states is in the run-times section, generated from the committed
+    record of `make bench`; no time is typed elsewhere in the prose."""
+    text = (ROOT / "README.md").read_text()
+    part = text[text.index(readme.BENCH_BEGIN):text.index(readme.BENCH_END) + len(readme.BENCH_END)]
+    assert part == readme.bench_section(ROOT / "reports" / "bench.json")
+    rest = text.replace(part, "")
+    assert not re.findall(r"about \d+(\.\d+)? ?(s|min|minutes|seconds)\b", rest)

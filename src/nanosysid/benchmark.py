@@ -23,11 +23,11 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from nanosysid import metrics
-from nanosysid.dataio import Flight, parse_flight_name, read_flight_csv
+from nanosysid.dataio import OUTPUT_COLUMNS, Flight, atomic_file, parse_flight_name, read_flight_csv
 from nanosysid.errors import ConfigError, DataError, PredictionError
 
 __all__ = ["Benchmark", "Flight", "Scores", "evaluate", "load", "predictions", "score", "windows", "check_predictions",
-           "QUAT_NORM_TOLERANCE"]
+           "template_frame", "write_template", "QUAT_NORM_TOLERANCE"]
 
 Predictor = Callable[[Any, Any], Any]
 
@@ -216,6 +216,40 @@ def predictions(predict: Predictor, flight: Flight, *, horizon: int = 50, batch_
     for b, pred in _predicted_batches(predict, y0, u, batch_size, flight.name):
         out[b] = pred
     return out
+
+
+def template_frame(predict: Predictor, flight: Flight, *, horizon: int = 50, batch_size: int = 8192):
+    """A predictor's rollouts on a flight in the DataFrame layout of the nonlinear_benchmarks
+    metric template (``nanodrone_error_metrics.compute_errors``): one row per sample, ``t`` and
+    the measured outputs (``x`` .. ``wz``), and ``{x..wz}_pred_h{h}``, h = 1..H.
+
+    Row ``t`` holds the prediction started at sample ``t``: ``x_pred_h{h}`` is the prediction
+    of ``x`` at sample ``t + h``, from the state at ``t`` and the inputs of ``t .. t + h - 1``
+    (the paper's definition, which :func:`evaluate` scores). The last ``H`` rows, where no
+    whole window starts, are NaN. The template scores ``pred_h{h}`` of row ``t`` against the
+    measurement of row ``t + h - 1``; ``frame[pred_columns].shift(1)`` moves each prediction
+    one row down, so that the template's figures are ours.
+    """
+    import pandas as pd
+
+    pred = predictions(predict, flight, horizon=horizon, batch_size=batch_size)  # (T - H, H, 13)
+    T, n = len(flight), len(pred)
+    cols: dict[str, np.ndarray] = {"t": flight.t}
+    for j, c in enumerate(OUTPUT_COLUMNS):
+        cols[c] = flight.y[:, j]
+    for j, c in enumerate(OUTPUT_COLUMNS):
+        for h in range(1, horizon + 1):
+            col = np.full(T, np.nan)
+            col[:n] = pred[:, h - 1, j]
+            cols[f"{c}_pred_h{h}"] = col
+    return pd.DataFrame(cols)
+
+
+def write_template(predict: Predictor, flight: Flight, path: str | os.PathLike, *, horizon: int = 50) -> None:
+    """:func:`template_frame` as a CSV file (written atomically)."""
+    frame = template_frame(predict, flight, horizon=horizon)
+    with atomic_file(path) as tmp:
+        frame.to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
 
 
 def evaluate(

@@ -1,0 +1,68 @@
+"""make bench: every benchmark in one process, their figures recorded in ``reports/bench.json``.
+
+The record holds the machine (CPU model, cores, the pinned thread count, torch and Python
+versions), and for each benchmark its figures: times in seconds and the ratios against the
+reference each measures in the same run. No date: the same figures give the same bytes.
+``python -m nanosysid.report.readme --sections bench`` puts them into the README.
+"""
+
+from __future__ import annotations
+
+from nanosysid import numerics
+
+numerics.pin()  # the code paths the stages run, before torch and numpy are loaded
+
+import argparse  # noqa: E402
+import importlib  # noqa: E402
+import json  # noqa: E402
+import os  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+BENCHMARKS = ("simulate_speed", "data_pipeline_speed", "evaluate_speed", "discover_speed", "visualize_speed")
+FORMAT = "nanosysid-bench-1"
+
+
+def machine() -> dict[str, object]:
+    import torch
+
+    cpu = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return {"cpu": cpu, "cores": os.cpu_count(), "threads": int(numerics.THREADS), "torch": torch.__version__,
+            "python": platform.python_version()}
+
+
+def _round(v):
+    return float(f"{v:.3g}") if isinstance(v, float) else v
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, default=Path("reports/bench.json"))
+    p.add_argument("names", nargs="*", default=list(BENCHMARKS))
+    a = p.parse_args(argv)
+    sys.path.insert(0, str(Path(__file__).parent))
+    record = {"format": FORMAT, "machine": machine(), "benchmarks": {}}
+    for name in a.names:
+        print(f"== benchmarks/{name}.py", flush=True)
+        module = importlib.import_module(name)
+        figures = module.main()
+        record["benchmarks"][name] = {"about": module.__doc__.strip().split("\n\n")[0].replace("\n", " "),
+                                      "figures": {k: _round(v) for k, v in figures.items()}}
+    from nanosysid.dataio import atomic_file
+
+    with atomic_file(a.out) as tmp:
+        tmp.write_text(json.dumps(record, indent=1, allow_nan=False) + "\n")
+    print(f"{a.out}: written")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
