@@ -5,7 +5,7 @@ import math
 import numpy as np
 import torch
 
-from nanosysid import benchmark, dynamics, models, sim, so3
+from nanosysid import benchmark, models, sim, so3
 from nanosysid.dataio import write_flight_csv
 from nanosysid.sim import world as fx
 from nanosysid.sim.simulator import SimConfig, simulate
