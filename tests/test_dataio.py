@@ -1,6 +1,7 @@
 """Published CSV schema: round trip, and one clear error per kind of bad input."""
 
 import os
+import re
 
 import numpy as np
 import pytest
@@ -233,4 +234,12 @@ def test_file_names_links_and_folders_are_checked(dataset):
     (root / "train" / "chirp_d_run2.csv").unlink()
     (root / "train" / "chirp_d_run3.csv").mkdir()
     with pytest.raises(DataError, match=r"chirp_d_run3.csv: a folder, not a flight CSV file"):
+        benchmark.load(root)
+
+
+def test_an_empty_test_folder_is_one_clear_error(dataset):
+    root, _ = dataset
+    for f in (root / "test").glob("*.csv"):
+        f.unlink()
+    with pytest.raises(DataError, match=rf"{re.escape(str(root / 'test'))}: no flight CSV files"):
         benchmark.load(root)
