@@ -266,17 +266,26 @@ def test_body_frame_velocity_is_rotated_into_the_world(raw, bag, tmp_path):
     np.testing.assert_allclose(got[["vx", "vy", "vz"]], ref[["vx", "vy", "vz"]], atol=1e-12)
 
 
-def test_zero_quaternion_and_motors_never_valid(bag, tmp_path):
+def nth_message(topic_name, n, edit):
+    """A change that applies ``edit(msg) -> msg`` to the n-th message (from 1) of one topic."""
     count = {"n": 0}
 
-    def zero_quat(topic, m, t):
-        if topic == MOCAP:
+    def change(topic, m, t):
+        if topic == topic_name:
             count["n"] += 1
-            if count["n"] == 10:
-                q = dataclasses.replace(m.pose.orientation, x=0.0, y=0.0, z=0.0, w=0.0)
-                return dataclasses.replace(m, pose=dataclasses.replace(m.pose, orientation=q)), t
+            if count["n"] == n:
+                return edit(m), t
         return m, t
 
+    return change
+
+
+def test_zero_quaternion_and_motors_never_valid(bag, tmp_path):
+    def zero(m):
+        q = dataclasses.replace(m.pose.orientation, x=0.0, y=0.0, z=0.0, w=0.0)
+        return dataclasses.replace(m, pose=dataclasses.replace(m.pose, orientation=q))
+
+    zero_quat = nth_message(MOCAP, 10, zero)
     with pytest.raises(DataError, match=rf"zero: topic {MOCAP} \(mocap\), message 9: the orientation quaternion "
                                         "has norm 0, not 1"):
         extract_bag(rewrite(bag, tmp_path / "zero", zero_quat), TOPICS)
@@ -309,15 +318,10 @@ def test_bag_folder_without_metadata(bag, tmp_path):
 
 
 def test_nan_value(bag, tmp_path):
-    count = {"n": 0}
+    def az_nan(m):
+        return dataclasses.replace(m, linear_acceleration=dataclasses.replace(m.linear_acceleration, z=float("nan")))
 
-    def nan(topic, m, t):
-        if topic == IMU:
-            count["n"] += 1
-            if count["n"] == 42:
-                acc = dataclasses.replace(m.linear_acceleration, z=float("nan"))
-                return dataclasses.replace(m, linear_acceleration=acc), t
-        return m, t
+    nan = nth_message(IMU, 42, az_nan)
 
     with pytest.raises(DataError, match=rf"nan: topic {IMU} \(imu\), message 41: field az is nan"):
         extract_bag(rewrite(bag, tmp_path / "nan", nan), TOPICS)
