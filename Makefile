@@ -11,6 +11,8 @@ PIP := $(BIN)/python -m pip install --quiet --disable-pip-version-check -c const
 export PATH := $(abspath $(BIN)):$(PATH)
 export DVC_NO_ANALYTICS := 1
 export PYTHONHASHSEED := 0
+# the numerical code paths every stage pins (src/nanosysid/numerics.py), for every command run here
+PINNED := $(shell PYTHONPATH=src $(PYTHON) -m nanosysid.numerics)
 
 .PHONY: venv test repro params bench clean-venv toolchain
 
@@ -37,7 +39,7 @@ toolchain:
 	fi
 
 test: $(STAMP) toolchain
-	$(BIN)/python -m pytest
+	env $(PINNED) $(BIN)/python -m pytest
 
 # DVC composes params.yaml from conf/ only on `dvc exp run`; compose it here too so an
 # edit to conf/ is never silently ignored by `dvc repro`.
@@ -45,12 +47,12 @@ params: $(STAMP)
 	$(BIN)/python -m nanosysid.config compose
 
 repro: params toolchain
-	$(BIN)/dvc repro
+	env $(PINNED) $(BIN)/dvc repro
 	$(BIN)/python -m nanosysid.report.readme --sections results
 
 # every benchmark's figures into reports/bench.json, and from there into the README
 bench: $(STAMP)
-	PYTHONPATH=$(CURDIR) $(BIN)/python benchmarks/run.py
+	env $(PINNED) PYTHONPATH=$(CURDIR) $(BIN)/python benchmarks/run.py
 	$(BIN)/python -m nanosysid.report.readme --sections bench
 
 clean-venv:
