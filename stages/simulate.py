@@ -28,13 +28,12 @@ def main(cfg: DictConfig) -> None:
     """
     s = cfg.sim
     vehicle = vehicle_of(cfg)
-    world = sim.World(dict(s.effects))
     sim_cfg = sim.SimConfig.from_mapping(plain(s.flight))
-    specs = sim.flight_specs(dict(s.runs), str(s.date))
+    specs = sim.flight_specs(dict(s.runs), dict(s.effects), int(cfg.seed))
     if not specs:
         raise ConfigError("sim.runs: no flight to simulate")
-    raw = simulate_raw(specs, world=world, vehicle=vehicle, cfg=sim_cfg, seed=int(cfg.seed))
-    flights = flights_from_record(raw, world=world, vehicle=vehicle, cfg=sim_cfg)
+    raw = simulate_raw(specs, vehicle=vehicle, cfg=sim_cfg, date=str(s.date))
+    flights = flights_from_record(raw, vehicle=vehicle, cfg=sim_cfg)
     topics = plain(cfg.recording.topics)
     rec_cfg = RecorderConfig.from_mapping(plain(s.recorder))
     out = Path(s.out_dir)
@@ -42,7 +41,7 @@ def main(cfg: DictConfig) -> None:
         (tmp / "bags").mkdir()
         for i, f in enumerate(tqdm(flights, desc="record", unit="bag", disable=None)):
             record_flight(raw, i, tmp / "bags" / f.name, topics=topics, cfg=rec_cfg, noise=sim_cfg.noise,
-                          world=world, vehicle=vehicle, seed=int(cfg.seed))
+                          vehicle=vehicle)
             write_flight_csv(f, tmp / "csv" / f"{f.name}.csv")
     with atomic_file(Path(cfg.paths.sim_report) / "stats.md") as f:
         f.write_text(stats_markdown(trajectory_stats(flights)))

@@ -29,17 +29,16 @@ CFG = SimConfig.from_mapping({
     "preroll": 0.5, "postroll": 1.0,
     "trajectories": {"melon": {"duration": 8.0, "circle_time": 6.0, "return_time": 1.5, "ramp_time": 0.15}},
 })
-WORLD = sim.World(dict(sim.DEFAULT_WORLD))
 
 
 @pytest.fixture(scope="module")
 def raw():
-    return simulate_raw([("melon_20250601_run1", "melon", 1)], world=WORLD, cfg=CFG, progress=False)
+    return simulate_raw([sim.FlightSpec("melon", 1)], cfg=CFG, progress=False)
 
 
 def record(raw, path, **recorder):
     return record_flight(raw, 0, path, topics=TOPICS, cfg=RecorderConfig(**recorder), noise=CFG.noise,
-                         world=WORLD, vehicle=Vehicle(), seed=0)
+                         vehicle=Vehicle())
 
 
 @pytest.fixture(scope="module")
@@ -253,8 +252,7 @@ def test_topic_map_errors(bag, change, message):
 def test_body_frame_velocity_is_rotated_into_the_world(raw, bag, tmp_path):
     topics = {**TOPICS, "odom": {**TOPICS["odom"], "velocity_frame": "body"}}
     path = tmp_path / "body"
-    record_flight(raw, 0, path, topics=topics, cfg=RecorderConfig(), noise=CFG.noise, world=WORLD,
-                  vehicle=Vehicle(), seed=0)
+    record_flight(raw, 0, path, topics=topics, cfg=RecorderConfig(), noise=CFG.noise, vehicle=Vehicle())
     with AnyReader([path], default_typestore=typestore()) as r:
         c = next(c for c in r.connections if c.topic == TOPICS["odom"]["topic"])
         m = r.deserialize(next(r.messages(connections=[c]))[2], c.msgtype)

@@ -104,7 +104,7 @@ def test_controller_hovers_and_tracks_a_step():
 
     step = Reference("step", 5.0, pva)
     cfg = SimConfig.from_mapping({"preroll": 1.0, "initial_offset": 0.0})
-    f = simulate([("step_t_run1", step, 1)], world=sim.World({}), cfg=cfg, noise=False, progress=False)[0]
+    f = simulate([sim.FlightSpec(step, 1, effects={}, name="step_t_run1")], cfg=cfg, noise=False, progress=False)[0]
     p = f.y[:, :3]
     assert np.abs(p[:100] - [0, 0, 1.0]).max() < 1e-3  # hover holds still
     assert np.abs(p[-50:] - [0.3, -0.2, 1.2]).max() < 0.02  # settled on the step within 4 s

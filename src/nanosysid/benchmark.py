@@ -3,7 +3,9 @@
 A predictor is ``predict(y0 (B, 13), u (B, H, 4)) -> (B, H, 13)`` (numpy or torch). For
 every admissible start ``t in {0, ..., T-H-1}`` of a flight it receives ``y_t`` and
 ``u_{t..t+H-1}`` and predicts ``y_{t+1..t+H}`` open loop. Each flight gives ``T - H``
-windows.
+windows. A predictor with ``timed = True`` (the simulator's oracle, which replays what
+happened at that time of that flight) is also given ``t0=`` each window's start time (B,) in
+s from the flight's first sample, and ``flight=`` the flight's name.
 
 Example::
 
@@ -177,13 +179,18 @@ def check_predictions(pred: np.ndarray, where: str) -> None:
                               f"{norm[i, h]:.4g}; a rotation needs a unit quaternion (within {QUAT_NORM_TOLERANCE:g})")
 
 
-def _predicted_batches(predict: Predictor, y0: np.ndarray, u: np.ndarray, batch_size: int, name: str):
+def _predicted_batches(predict: Predictor, y0: np.ndarray, u: np.ndarray, batch_size: int, flight: Flight,
+                       starts: np.ndarray | None = None):
     """``(slice, prediction)`` over batches of windows, the predictions checked; the predictor
-    gets read-only copies of the windows."""
-    n, horizon = u.shape[0], u.shape[1]
+    gets read-only copies of the windows (and a timed one their start times)."""
+    n, horizon, name = u.shape[0], u.shape[1], flight.name
+    timed = getattr(predict, "timed", False)
+    t0 = flight.t - flight.t[0]
+    t0 = t0[:n] if starts is None else t0[starts]
     for s in range(0, n, batch_size):
         b = slice(s, min(s + batch_size, n))
-        pred = _to_numpy(predict(_read_only(y0[b]), _read_only(u[b])))
+        context = {"t0": _read_only(t0[b]), "flight": name} if timed else {}
+        pred = _to_numpy(predict(_read_only(y0[b]), _read_only(u[b]), **context))
         if pred.shape != (b.stop - b.start, horizon, 13):
             raise PredictionError(
                 f"predictor returned shape {pred.shape} on flight {name}; "
@@ -197,7 +204,7 @@ def _score_flight(predict: Predictor, flight: Flight, horizon: int, batch_size: 
     y0, u, y = windows(flight, horizon)
     n = len(y0)
     sums = {k: np.zeros(horizon) for k in metrics.QUANTITIES}
-    for b, pred in _predicted_batches(predict, y0, u, batch_size, flight.name):
+    for b, pred in _predicted_batches(predict, y0, u, batch_size, flight):
         for k, e in metrics.errors(y[b], pred).items():
             sums[k] += e.sum(axis=0)
     return Scores(mae={k: v / n for k, v in sums.items()}, n_windows=n)
@@ -213,7 +220,7 @@ def predictions(predict: Predictor, flight: Flight, *, horizon: int = 50, batch_
     if starts is not None:
         y0, u = y0[starts], u[starts]
     out = np.empty((len(y0), horizon, 13))
-    for b, pred in _predicted_batches(predict, y0, u, batch_size, flight.name):
+    for b, pred in _predicted_batches(predict, y0, u, batch_size, flight, starts):
         out[b] = pred
     return out
 

@@ -22,6 +22,7 @@ import functools
 from typing import Callable, Sequence
 
 import torch
+import torch.nn.functional as F
 from torch import Tensor
 
 from nanosysid import so3
@@ -106,7 +107,7 @@ def quad_dynamics(
     u: Tensor,
     *,
     mass: float,
-    inertia: tuple[float, float, float],
+    inertia: tuple[float, float, float] | Tensor,
     k_f: float,
     k_m: float,
     arm: float,
@@ -121,7 +122,8 @@ def quad_dynamics(
         x: State ``(..., 13)``, see the module docstring.
         u: Rotor speeds ``(..., 4)`` in rad/s.
         mass: Vehicle mass (kg).
-        inertia: Diagonal of the body-frame inertia matrix J (kg m^2).
+        inertia: Diagonal of the body-frame inertia matrix J (kg m^2): three numbers, or a
+            tensor broadcasting against ``x[..., :3]`` (one body per flight of a batch).
         k_f: Thrust coefficient (N s^2/rad^2).
         k_m: Moment coefficient (N m s^2/rad^2).
         arm: Effective lever arm L (m).
@@ -136,7 +138,7 @@ def quad_dynamics(
     """
     _, v, q, w = split_state(x)
     thrust, tau = rotor_wrench(u, k_f=k_f, k_m=k_m, arm=arm)
-    f_b = torch.cat((torch.zeros_like(v[..., :2]), thrust.unsqueeze(-1)), dim=-1)  # [0, 0, T]
+    f_b = F.pad(thrust.unsqueeze(-1), (2, 0))  # [0, 0, T]
     if force_body is not None:
         f_b = f_b + force_body
     g = _constant((0.0, 0.0, -gravity), x.dtype, x.device)
@@ -145,7 +147,7 @@ def quad_dynamics(
     qv, qw = q[..., :3], q[..., 3:]
     q_dot = 0.5 * torch.cat((qw * w + torch.linalg.cross(qv, w, dim=-1), -(qv * w).sum(-1, keepdim=True)), dim=-1)
     if angular_dynamics:
-        J = _constant(tuple(inertia), x.dtype, x.device)
+        J = inertia if isinstance(inertia, Tensor) else _constant(tuple(inertia), x.dtype, x.device)
         if torque_body is not None:
             tau = tau + torque_body
         w_dot = (tau - torch.linalg.cross(w, J * w, dim=-1)) / J
@@ -154,16 +156,23 @@ def quad_dynamics(
     return torch.cat((v, v_dot, q_dot, w_dot), dim=-1)
 
 
-def rk4_step(f: Callable[[Tensor, Tensor], Tensor], x: Tensor, u: Tensor, dt: float) -> Tensor:
-    """One classical Runge-Kutta step of ``dx/dt = f(x, u)`` with ``u`` held over the step.
+def rk4_step(f: Callable[..., Tensor], x: Tensor, u: Tensor, dt: float, t=None) -> Tensor:
+    """One classical Runge-Kutta step of ``dx/dt = f(x, u)`` with ``u`` held over the step; of
+    ``dx/dt = f(x, u, t)`` when the step's start time ``t`` (s; a float or a tensor) is given.
 
     ``x`` is anything with ``+`` and multiplication by a float: a tensor, or the vector of
     traced scalars the C generator runs it on.
     """
-    k1 = f(x, u)
-    k2 = f(x + 0.5 * dt * k1, u)
-    k3 = f(x + 0.5 * dt * k2, u)
-    k4 = f(x + dt * k3, u)
+    if t is None:
+        k1 = f(x, u)
+        k2 = f(x + 0.5 * dt * k1, u)
+        k3 = f(x + 0.5 * dt * k2, u)
+        k4 = f(x + dt * k3, u)
+    else:
+        k1 = f(x, u, t)
+        k2 = f(x + 0.5 * dt * k1, u, t + 0.5 * dt)
+        k3 = f(x + 0.5 * dt * k2, u, t + 0.5 * dt)
+        k4 = f(x + dt * k3, u, t + dt)
     return x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
 
 
@@ -172,7 +181,7 @@ def renormalise(y: Tensor) -> Tensor:
     return torch.cat((y[..., :6], so3.quat_normalize(y[..., 6:10]), y[..., 10:]), dim=-1)
 
 
-def integrate(f: Callable, y, u, *, dt: float, substeps: int, normalise: Callable = renormalise):
+def integrate(f: Callable, y, u, *, dt: float, substeps: int, normalise: Callable = renormalise, t=None):
     """One sample period of every physics-based step: ``substeps`` RK4 steps of ``dx/dt = f(x, u)``,
     then the quaternion renormalised (RK4 leaves the unit sphere by O(h^5) per step; this keeps
     long rollouts on SO(3) without changing the rotation).
@@ -185,10 +194,11 @@ def integrate(f: Callable, y, u, *, dt: float, substeps: int, normalise: Callabl
         dt: The sample period (s).
         substeps: RK4 steps per period.
         normalise: Renormalisation of the quaternion; the C generator passes its scalar one.
+        t: Time (s) at the start of the period, for an ``f(x, u, t)`` that depends on time.
     """
     if substeps < 1:
         raise ValueError(f"substeps must be >= 1, got {substeps}")
     h = dt / substeps
     for j in range(substeps):
-        y = rk4_step(f, y, u(j, h) if callable(u) else u, h)
+        y = rk4_step(f, y, u(j, h) if callable(u) else u, h, None if t is None else t + j * h)
     return normalise(y)

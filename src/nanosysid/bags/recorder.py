@@ -35,8 +35,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from nanosysid.bags.extract import rotate
 from nanosysid.bags.messages import typestore
-from nanosysid.sim.world import World
-from nanosysid.sim.simulator import NoiseConfig, RawRecord, interp_columns, perturb_attitude, velocity_drift
+from nanosysid.sim.simulator import NoiseConfig, RawRecord, flight_key, interp_columns, perturb_attitude, velocity_drift
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["RecorderConfig", "record_flight", "ERPM_PER_RADS"]
@@ -106,9 +105,7 @@ def record_flight(
     topics: Mapping[str, Mapping[str, Any]],
     cfg: RecorderConfig,
     noise: NoiseConfig,
-    world: World,
     vehicle: Vehicle,
-    seed: int,
 ) -> dict[str, float]:
     """Write flight ``i`` of a raw record as a ROS 2 bag (mcap, zstd) at ``bag_dir``.
 
@@ -116,7 +113,8 @@ def record_flight(
         The injected clock relations and lags (also stored in the truth file).
     """
     store = typestore()
-    rng = np.random.default_rng([seed, 101, i])
+    # the flight's own stream (its seed, trajectory and run), apart from the simulator's
+    rng = np.random.default_rng([*flight_key(raw.seeds[i], raw.trajectories[i], raw.runs[i]), 101])
     tau_all, x, omega = raw.t, raw.x[i], raw.omega[i]
     # the recording spans the flight with some lead and trail, within what was simulated
     tau0 = max(-cfg.lead, tau_all[0] + 0.01)
@@ -205,7 +203,7 @@ def record_flight(
     )
 
     # motors: the reading stamped at tick j is the rotor speed motor_lag earlier
-    motor_lag = cfg.motor_delay + world.telemetry_delay
+    motor_lag = cfg.motor_delay + raw.worlds[i].telemetry_delay
     om_read = interp_columns(tau_all, omega, tau_o - motor_lag) + rng.normal(scale=noise.rotor, size=(n, 4))
     mcfg = topics["motors"]
     counts = np.clip(np.round(om_read * ERPM_PER_RADS / mcfg["erpm_unit"]), 0, mcfg["invalid"] - 1).astype(np.uint16)

@@ -65,11 +65,11 @@ def _physics(*, angular_dynamics: bool, name: str) -> Callable[..., Predictor]:
 
 
 def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: float = 0.01,
-            rotor_delay: float | None = None) -> Predictor:
+            rotor_delay: float | None = None, seed: int = 0) -> Predictor:
     from nanosysid import sim
 
     eff = None if effects is None else dict(effects)
-    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay)
+    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay, seed=int(seed))
 
 
 def _learned(*, checkpoint: str, **training: Any) -> Predictor:

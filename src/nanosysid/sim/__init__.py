@@ -7,21 +7,27 @@ Example::
     flight = sim.simulate_flight("melon", run=1, effects={"rotor_drag": 1.0}, seed=0)
     oracle = sim.oracle(effects={"rotor_drag": 1.0})   # a predictor with the true dynamics
 
-``effects=None`` means the default world (every effect at strength 1.0); ``{}`` means none.
+    def push(t, x, omega, omega_dot):             # a wrench of your own, body frame, SI units
+        force = torch.zeros_like(x[..., :3]); force[..., 0] = 0.01
+        return force, torch.zeros_like(force)
+    flight = sim.simulate_flight("melon", effects={}, extra_wrench=push)
+
+``effects=None`` means the default world (:data:`DEFAULT_WORLD`); ``{}`` means none. A batch
+of flights, each with its own world, is a list of :class:`FlightSpec`.
 """
 
 from __future__ import annotations
 
-from typing import Mapping
+from typing import Mapping, Sequence
 
 from nanosysid.dataio import Flight
 from nanosysid.sim.oracle import Oracle
-from nanosysid.sim.simulator import SimConfig, simulate
-from nanosysid.sim.world import DEFAULT_WORLD, EFFECTS, World
+from nanosysid.sim.simulator import FlightSpec, SimConfig, simulate
+from nanosysid.sim.world import DEFAULT_WORLD, EFFECTS, ExtraWrench, World
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["EFFECTS", "DEFAULT_WORLD", "World", "SimConfig", "flight_specs", "simulate_flight", "simulate_flights",
-           "oracle"]
+__all__ = ["EFFECTS", "DEFAULT_WORLD", "World", "SimConfig", "FlightSpec", "flight_specs", "simulate_flight",
+           "simulate_flights", "oracle"]
 
 DATE = "20250601"
 
@@ -30,13 +36,15 @@ def _world(effects: Mapping[str, float] | None) -> World:
     return World(dict(DEFAULT_WORLD) if effects is None else dict(effects))
 
 
-def flight_specs(runs: Mapping[str, int], date: str = DATE) -> list[tuple[str, str, int]]:
-    """``(name, trajectory, run)`` for runs 1..n of each trajectory; names ``<trajectory>_<date>_run<k>``."""
-    return [(f"{traj}_{date}_run{k}", traj, k) for traj, n in runs.items() for k in range(1, int(n) + 1)]
+def flight_specs(runs: Mapping[str, int], effects: Mapping[str, float] | None = None, seed: int = 0, *,
+                 extra_wrench: ExtraWrench | None = None) -> list[FlightSpec]:
+    """Runs 1..n of each trajectory of ``runs`` in one world, as :class:`FlightSpec`."""
+    return [FlightSpec(traj, k, effects=effects, seed=seed, extra_wrench=extra_wrench)
+            for traj, n in runs.items() for k in range(1, int(n) + 1)]
 
 
 def simulate_flights(
-    runs: Mapping[str, int],
+    runs: Mapping[str, int] | Sequence[FlightSpec],
     effects: Mapping[str, float] | None = None,
     seed: int = 0,
     *,
@@ -44,11 +52,19 @@ def simulate_flights(
     cfg: SimConfig | None = None,
     vehicle: Vehicle | None = None,
     date: str = DATE,
+    extra_wrench: ExtraWrench | None = None,
     progress: bool = True,
 ) -> list[Flight]:
-    """Simulate ``runs[trajectory]`` runs of each trajectory as one batch."""
-    return simulate(flight_specs(runs, date), world=_world(effects), vehicle=vehicle, cfg=cfg, seed=seed, noise=noise,
-                    progress=progress)
+    """Simulate flights as one batch: a list of :class:`FlightSpec` (each flight its own world,
+    seed and extra wrench), or ``runs[trajectory]`` runs of each trajectory in one world."""
+    if isinstance(runs, Mapping):
+        specs = flight_specs(runs, effects, seed, extra_wrench=extra_wrench)
+    else:
+        specs = list(runs)
+        if effects is not None or seed != 0 or extra_wrench is not None:
+            raise TypeError("simulate_flights: with a list of FlightSpec, each spec names its own effects, seed and "
+                            "extra_wrench")
+    return simulate(specs, vehicle=vehicle, cfg=cfg, noise=noise, date=date, progress=progress)
 
 
 def simulate_flight(
@@ -56,20 +72,25 @@ def simulate_flight(
     run: int = 1,
     effects: Mapping[str, float] | None = None,
     seed: int = 0,
+    *,
+    extra_wrench: ExtraWrench | None = None,
     **options,
 ) -> Flight:
     """One flight; the same as that flight from :func:`simulate_flights` with the same seed."""
-    name = f"{trajectory}_{options.pop('date', DATE)}_run{run}"
-    return simulate([(name, trajectory, run)], world=_world(effects), seed=seed,
-                    progress=options.pop("progress", False), **options)[0]
+    spec = FlightSpec(trajectory, run, effects=effects, seed=seed, extra_wrench=extra_wrench)
+    return simulate([spec], progress=options.pop("progress", False), **options)[0]
 
 
 def oracle(effects: Mapping[str, float] | None = None, *, vehicle: Vehicle | None = None, substeps: int = 4,
-           dt: float = 0.01, rotor_delay: float | None = None) -> Oracle:
+           dt: float = 0.01, rotor_delay: float | None = None, seed: int = 0,
+           extra_wrench: ExtraWrench | None = None) -> Oracle:
     """A predictor for :func:`nanosysid.benchmark.evaluate` with the true dynamics of the world.
 
     ``rotor_delay`` (s) is the delay of the rotor speeds in the data behind the true ones; by
     default the ``telemetry_delay`` effect's, as in the simulator's direct output. Flights from
-    the data pipeline have the motor stream aligned already: 0.
+    the data pipeline have the motor stream aligned already: 0. ``seed`` is the simulation's:
+    with it the oracle replays each flight's turbulence. ``extra_wrench`` is the user-supplied
+    wrench the flights were simulated with.
     """
-    return Oracle(_world(effects), vehicle, dt=dt, substeps=substeps, rotor_delay=rotor_delay)
+    return Oracle(_world(effects), vehicle, dt=dt, substeps=substeps, rotor_delay=rotor_delay, seed=seed,
+                  extra_wrench=extra_wrench)

@@ -12,7 +12,7 @@ from __future__ import annotations
 import functools
 import logging
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -23,11 +23,12 @@ from tqdm.auto import tqdm
 from nanosysid import dynamics, so3
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, OUTPUT_COLUMNS, Flight
 from nanosysid.sim.controller import ControllerState, Mellinger, MellingerGains
-from nanosysid.sim.world import World
+from nanosysid.sim.world import DEFAULT_WORLD, REALISATION_START, ExtraWrench, Nature, World
 from nanosysid.sim.trajectories import Reference, make_reference
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["SimConfig", "NoiseConfig", "RawRecord", "simulate", "simulate_raw", "flights_from_record", "TRUTH_COLUMNS"]
+__all__ = ["SimConfig", "NoiseConfig", "FlightSpec", "RawRecord", "simulate", "simulate_raw", "flights_from_record",
+           "flight_key", "TRUTH_COLUMNS"]
 
 log = logging.getLogger(__name__)
 
@@ -58,7 +59,7 @@ class NoiseConfig:
 class SimConfig:
     """Rates, motor model, trajectory options and noise of a simulation."""
 
-    physics_rate: float = 1000.0  # Hz
+    physics_rate: float = 500.0  # Hz, RK4 with the command held between control instants
     control_rate: float = 500.0  # Hz
     output_rate: float = 100.0  # Hz
     motor_tau: float = 0.02  # s, first-order rotor speed response
@@ -91,23 +92,65 @@ def _trajectory_options(cfg: SimConfig, name: str) -> dict[str, Any]:
     return opts
 
 
+def flight_key(seed: int, trajectory: str, run: int) -> list[int]:
+    """The whole numbers every random draw of a flight is seeded from: its seed, trajectory and run."""
+    return [int(seed), TRAJECTORY_INDEX.get(trajectory, 9), int(run)]
+
+
+@dataclass(frozen=True)
+class FlightSpec:
+    """One flight of a batch, with its own world.
+
+    Attributes:
+        trajectory: A trajectory name (``square``, ``random``, ``chirp``, ``melon``) or a
+            :class:`~nanosysid.sim.trajectories.Reference`.
+        run: Run number; with ``seed`` and the trajectory it seeds the flight's random draws.
+        effects: Strength of each world effect; None is the default world, ``{}`` none.
+        seed: The flight's seed.
+        extra_wrench: A user-supplied ``fn(t, x, omega, omega_dot) -> (force_B, torque_B)``
+            (torch tensors, SI units, body frame), added to the world's effects inside the
+            integration; None for none.
+        name: The flight's name; by default ``<trajectory>_<date>_run<run>``.
+    """
+
+    trajectory: str | Reference
+    run: int = 1
+    effects: Mapping[str, float] | None = None
+    seed: int = 0
+    extra_wrench: ExtraWrench | None = None
+    name: str | None = None
+
+    @property
+    def world(self) -> World:
+        return World(dict(DEFAULT_WORLD) if self.effects is None else dict(self.effects))
+
+    def flight_name(self, date: str) -> str:
+        if self.name is not None:
+            return self.name
+        traj = self.trajectory.name if isinstance(self.trajectory, Reference) else self.trajectory
+        return f"{traj}_{date}_run{self.run}"
+
+
 @dataclass
 class RawRecord:
     """The truth of a batch of flights at the physics rate, before any sensor.
 
     Attributes:
-        names, trajectories, runs: One entry per flight.
+        names, trajectories, runs, seeds, worlds: One entry per flight.
         t: Time ``(N,)`` in s; 0 is the start of the trajectories, negative in the pre-roll.
         x: States ``(B, N, 13)``.
         omega: Rotor speeds ``(B, N, 4)`` (rad/s) and ``omega_dot`` their rates (rad/s^2).
         wrench: Body-frame force (N) and torque (N m) ``(B, N, 6)``, rotors and effects together.
         p_ref: Position setpoints ``(B, N, 3)`` (m), held between control instants.
         durations: Trajectory durations (s).
+        rngs: Each flight's generator of measurement noise.
     """
 
     names: list[str]
     trajectories: list[str]
     runs: list[int]
+    seeds: list[int]
+    worlds: list[World]
     t: np.ndarray
     x: np.ndarray
     omega: np.ndarray
@@ -119,30 +162,37 @@ class RawRecord:
 
 
 def simulate_raw(
-    flights: list[tuple[str, str | Reference, int]],
+    flights: Sequence[FlightSpec],
     *,
-    world: World,
     vehicle: Vehicle | None = None,
     cfg: SimConfig | None = None,
-    seed: int = 0,
+    date: str = "20250601",
     progress: bool = True,
 ) -> RawRecord:
-    """Simulate flights given as ``(name, trajectory, run)`` and keep the physics-rate truth.
+    """Simulate a batch of flights, each with its own world, and keep the physics-rate truth.
 
-    The trajectory is a name or a :class:`~nanosysid.sim.trajectories.Reference`. A flight's
-    random draws depend only on ``(seed, trajectory, run)``, so it comes out the same alone or
-    in a batch.
+    A flight's random draws (initial offset, noise, turbulence) depend only on its seed,
+    trajectory and run, and its world acts on it alone, so it comes out the same alone or in
+    any batch.
     """
     vehicle = vehicle or Vehicle()
     cfg = cfg or SimConfig()
     B = len(flights)
-    refs = [t if isinstance(t, Reference) else make_reference(t, **_trajectory_options(cfg, t)) for _, t, _ in flights]
-    rngs = [np.random.default_rng([seed, TRAJECTORY_INDEX.get(r.name, 9), run]) for r, (_, _, run) in zip(refs, flights)]
+    if cfg.preroll > -REALISATION_START - 5:
+        raise ValueError(f"preroll: {cfg.preroll} s is longer than the {-REALISATION_START - 5:g} s the simulator allows")
+    refs = [f.trajectory if isinstance(f.trajectory, Reference)
+            else make_reference(f.trajectory, **_trajectory_options(cfg, f.trajectory)) for f in flights]
+    keys = [flight_key(f.seed, r.name, f.run) for f, r in zip(flights, refs)]
+    rngs = [np.random.default_rng(k) for k in keys]
+    worlds = [f.world for f in flights]
 
     dt = 1.0 / cfg.physics_rate
     ctrl_every = round(cfg.physics_rate / cfg.control_rate)
     n_pre = round(cfg.preroll * cfg.physics_rate)
     n_steps = n_pre + round((max(r.duration for r in refs) + cfg.postroll) * cfg.physics_rate) + 1
+    t_end = (n_steps - 1) * dt - cfg.preroll
+    nature = Nature(worlds, vehicle, disturbances=[w.disturbance(k, t_end + 1.0) for w, k in zip(worlds, keys)],
+                    extra=[f.extra_wrench for f in flights])
 
     # setpoints at every control instant, (B, Nc, 3) each
     t_ctrl = np.arange(0, n_steps, ctrl_every) * dt - cfg.preroll
@@ -157,46 +207,54 @@ def simulate_raw(
     x[:, 13:] = vehicle.hover_speed
     ctrl = Mellinger(vehicle, cfg.gains, dt=ctrl_every * dt, omega_min=cfg.omega_min, omega_max=cfg.omega_max)
     cstate = ControllerState.zeros(B)
-    base = functools.partial(dynamics.quad_dynamics, **vehicle.dynamics_kwargs())
-    has_wrench = any(world.s(k) for k in world.strengths if k != "telemetry_delay")
+    params = vehicle.dynamics_kwargs()
+    if nature.inertia is not None:
+        params["inertia"] = nature.inertia
+    base = functools.partial(dynamics.quad_dynamics, **params)
 
-    def deriv(z: torch.Tensor, cmd: torch.Tensor) -> torch.Tensor:
+    def deriv(z: torch.Tensor, cmd: torch.Tensor, t: float) -> torch.Tensor:
         om = z[:, 13:]
         om_dot = (cmd - om) / cfg.motor_tau
-        force, torque = world.wrench(z[:, :13], om, om_dot, vehicle) if has_wrench else (None, None)
+        force, torque = nature.wrench(t, z[:, :13], om, om_dot) if nature.active else (None, None)
         return torch.cat((base(z[:, :13], om, force_body=force, torque_body=torque), om_dot), dim=-1)
 
-    rec = torch.empty(B, n_steps, 21, dtype=torch.float64)  # state (17) and rotor command (4)
+    states, cmds = [], []  # state (17) and rotor command (4) at every step
     bar = tqdm(total=n_steps, desc=f"simulate {B} flights", unit="step", unit_scale=True,
                disable=not progress, mininterval=1.0)
-    for k in range(n_steps):
-        if k % ctrl_every == 0:
-            j = k // ctrl_every
-            cmd, cstate = ctrl(x[:, :13], p_ref[:, j], v_ref[:, j], a_ref[:, j], cstate)
-        rec[:, k, :17] = x
-        rec[:, k, 17:] = cmd
-        x = dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, normalise=_normalise_in_place)
-        if k % 1000 == 999:
-            bar.update(1000)
+    with torch.inference_mode():
+        for k in range(n_steps):
+            if k % ctrl_every == 0:
+                j = k // ctrl_every
+                cmd, cstate = ctrl(x[:, :13], p_ref[:, j], v_ref[:, j], a_ref[:, j], cstate)
+            states.append(x)
+            cmds.append(cmd)
+            x = dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, normalise=_normalise_in_place,
+                                   t=k * dt - cfg.preroll)
+            if k % 1000 == 999:
+                bar.update(1000)
     bar.update(n_steps - bar.n)
     bar.close()
+    rec = torch.cat((torch.stack(states, 1), torch.stack(cmds, 1)), -1)
     if not torch.isfinite(rec).all():
         raise RuntimeError("simulation diverged (non-finite state); check the controller gains and motor model")
 
     # forces and torques of the whole record at once, with the same functions as the loop
+    t = np.arange(n_steps) * dt - cfg.preroll
     xs, om, cmd_rec = rec[..., :13], rec[..., 13:17], rec[..., 17:]
     om_dot = (cmd_rec - om) / cfg.motor_tau
     thrust, tau = dynamics.rotor_wrench(om, k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm)
     f_b = F.pad(thrust.unsqueeze(-1), (2, 0))
-    if has_wrench:
-        force, torque = world.wrench(xs, om, om_dot, vehicle)
+    if nature.active:
+        force, torque = nature.wrench(torch.from_numpy(t).expand(B, n_steps), xs, om, om_dot)
         f_b, tau = f_b + force, tau + torque
     p_hold = p_ref.repeat_interleave(ctrl_every, dim=1)[:, :n_steps]
     return RawRecord(
-        names=[n for n, _, _ in flights],
+        names=[f.flight_name(date) for f in flights],
         trajectories=[r.name for r in refs],
-        runs=[run for _, _, run in flights],
-        t=np.arange(n_steps) * dt - cfg.preroll,
+        runs=[f.run for f in flights],
+        seeds=[f.seed for f in flights],
+        worlds=worlds,
+        t=t,
         x=xs.numpy(),
         omega=om.numpy(),
         omega_dot=om_dot.numpy(),
@@ -208,22 +266,21 @@ def simulate_raw(
 
 
 def _normalise_in_place(x: torch.Tensor) -> torch.Tensor:
-    # the 1 kHz loop is bound by per-call overhead: one in-place op instead of a concatenation
+    # the loop is bound by per-call overhead: one in-place op instead of a concatenation
     x[:, 6:10] = so3.quat_normalize(x[:, 6:10])
     return x
 
 
 def simulate(
-    flights: list[tuple[str, str | Reference, int]],
+    flights: Sequence[FlightSpec],
     *,
-    world: World,
     vehicle: Vehicle | None = None,
     cfg: SimConfig | None = None,
-    seed: int = 0,
     noise: bool = True,
+    date: str = "20250601",
     progress: bool = True,
 ) -> list[Flight]:
-    """Simulate flights given as ``(name, trajectory, run)`` and sample them at the output rate.
+    """Simulate a batch of flights and sample them at the output rate.
 
     Returns:
         One :class:`Flight` per entry: the published columns (measured, with noise) and the
@@ -231,12 +288,11 @@ def simulate(
     """
     vehicle = vehicle or Vehicle()
     cfg = cfg or SimConfig()
-    raw = simulate_raw(flights, world=world, vehicle=vehicle, cfg=cfg, seed=seed, progress=progress)
-    return flights_from_record(raw, world=world, vehicle=vehicle, cfg=cfg, noise=noise)
+    raw = simulate_raw(flights, vehicle=vehicle, cfg=cfg, date=date, progress=progress)
+    return flights_from_record(raw, vehicle=vehicle, cfg=cfg, noise=noise)
 
 
-def flights_from_record(raw: RawRecord, *, world: World, vehicle: Vehicle, cfg: SimConfig, noise: bool = True
-                        ) -> list[Flight]:
+def flights_from_record(raw: RawRecord, *, vehicle: Vehicle, cfg: SimConfig, noise: bool = True) -> list[Flight]:
     """Sample a raw record at the output rate, with the telemetry delay and measurement noise."""
     every = round(cfg.physics_rate / cfg.output_rate)
     start = int(np.argmin(np.abs(raw.t)))
@@ -247,7 +303,7 @@ def flights_from_record(raw: RawRecord, *, world: World, vehicle: Vehicle, cfg: 
         y_true = raw.x[i, idx]
         omega_true = raw.omega[i, idx]
         # recorded rotor speeds lag the true ones: sample the true history d seconds earlier
-        u_rec = interp_columns(raw.t, raw.omega[i], raw.t[idx] - world.telemetry_delay)
+        u_rec = interp_columns(raw.t, raw.omega[i], raw.t[idx] - raw.worlds[i].telemetry_delay)
         acc_true = raw.wrench[i, idx, :3] / vehicle.mass  # specific force in the body frame
         y, u, acc = y_true.copy(), u_rec, acc_true.copy()
         if noise:

@@ -2,44 +2,91 @@
 
 This is what makes the data, known only to the simulator and the oracle. Discovery never
 imports it: its hypotheses are the separate library of :mod:`nanosysid.effects` (knowledge),
-whose entries have other names and may have other forms. Each effect has a dimensionless strength: 1.0 is a realistic magnitude for the CF2.1
-Brushless (numbers and sources in the docstrings), 0 switches it off. Effects that act on the
-rigid body return an extra body-frame force and torque; ``telemetry_delay`` acts on the
-recorded rotor speeds instead. Every function is batched over leading dimensions.
+whose entries have other names and may have other forms. Each effect has a dimensionless
+strength: 1.0 is a realistic magnitude for the CF2.1 Brushless (numbers and sources beside the
+constants below), 0 switches it off.
 
-Rotor spin directions are :data:`nanosysid.dynamics.SPIN`.
+Most effects are functions of the state and the rotor speeds and act on the rigid body as an
+extra body-frame force and torque. Two are not: ``telemetry_delay`` acts on the recorded rotor
+speeds, and ``turbulence`` is a band-limited random force and torque, one realisation per
+flight, drawn from the flight's seed (:meth:`World.disturbance`) so that the oracle can replay
+it; no model of the state can know it. ``inertia_offset`` changes the rigid body itself.
+
+:class:`Nature` is the wrench of a batch of flights, each with its own world, disturbance
+realisation and user-supplied wrench (``extra_wrench``). Every function is batched over
+leading dimensions. Rotor positions and spin directions are those of :mod:`nanosysid.dynamics`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping
+from typing import Callable, Mapping, Sequence
 
+import numpy as np
 import torch
 import torch.nn.functional as F
+from scipy.signal import butter, lfilter
 from torch import Tensor
 
 from nanosysid import dynamics, so3
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["EFFECTS", "World", "DEFAULT_WORLD"]
+__all__ = ["EFFECTS", "World", "Nature", "DEFAULT_WORLD", "ExtraWrench", "REALISATION_START"]
+
+# fn(t (...,), x (..., 13), omega (..., 4), omega_dot (..., 4)) -> (force_B (..., 3), torque_B (..., 3))
+ExtraWrench = Callable[[Tensor, Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
 
 EFFECTS: dict[str, str] = {
-    "rotor_drag": "blade flapping and induced drag: F_B = -(sum_i Omega_i) K v_B, K = diag(1.8e-6, 1.8e-6, 1.0e-6) kg/rad",
+    "rotor_drag": "blade flapping and induced drag of each rotor from its own air velocity v_i = v_B + w x r_i, at the "
+                  "rotor hub 8 mm above the centre of mass: F_i = -Omega_i K v_i, K = diag(1.8e-6, 1.8e-6, 1.0e-6) kg/rad "
+                  "(the z part: thrust falling with the rotor's axial inflow); torque sum r_i x F_i",
     "body_drag": "quadratic airframe drag: F_B = -c * |v_B| * v_B per axis, c = (1.5e-3, 1.5e-3, 3.0e-3) kg/m",
     "telemetry_delay": "the recorded rotor speeds lag the true ones by 30 ms (3 samples)",
     "com_offset": "centre of mass 1.5 mm forward and 1.0 mm right of the geometric centre: thrust torques roll/pitch",
     "motor_asymmetry": "per-rotor thrust (and drag-torque) coefficients k_F (1 + d_i), d = (+3.0, -2.0, +2.5, -3.5) %",
     "rotor_inertia": "rotor inertia J_r = 3.9e-8 kg m^2: yaw reaction -J_r sum s_i dOmega_i/dt and gyroscopic -w x h_rotors",
+    "inertia_offset": "the body's inertia is (+15, +15, +25) % off the nominal diagonal",
+    "turbulence": "band-limited random body force and torque (recirculating downwash, unsteady rotor aerodynamics): "
+                  "std (8, 8, 10) mN and (2.5, 2.5, 0.4) 1e-4 N m, low-pass 1 Hz; a new realisation every flight",
 }
 
 # Physical parameters at strength 1.0.
 ROTOR_DRAG = (1.8e-6, 1.8e-6, 1.0e-6)  # kg/rad; Foerster's CF2 fit 0.92e-6, DM's CF21BL lumped drag 3.1e-6
+# m: the propeller plane above the centre of mass (motor can and propeller hub over the board,
+# the battery and decks near the board; estimated from the layout, no measurement known)
+ROTOR_HUB_HEIGHT = 0.008
 BODY_DRAG = (1.5e-3, 1.5e-3, 3.0e-3)  # kg/m, 0.5 rho C_D A with about 25 cm^2 (side) and 50 cm^2 (top)
 TELEMETRY_DELAY = 0.030  # s
 COM_OFFSET = (1.5e-3, -1.0e-3, 0.0)  # m, within GRAFE's +-2 mm validation spread
 MOTOR_ASYMMETRY = (0.030, -0.020, 0.025, -0.035)  # zero mean: the collective k_F is unchanged
 ROTOR_INERTIA = 3.9e-8  # kg m^2, drone-models' cf21B propeller value
+# relative error of the nominal inertia (the paper's 2.40, 2.40, 3.23 e-5 kg m^2): drone-models'
+# fit is (2.5, 2.8, 4.9) e-5 and GRAFE's (3.3, 3.6, 5.9) e-5 for the same airframe class
+INERTIA_OFFSET = (0.15, 0.15, 0.25)
+# Band-limited disturbance: the paper's unexplained slow roll/pitch torque and the force that the
+# residual networks cannot learn; its size is set so that the physics row matches the paper's
+# (reports/sim/stats.md), a few per cent of the hover thrust and of the rotors' roll/pitch authority
+TURBULENCE_FORCE = (8.0e-3, 8.0e-3, 10.0e-3)  # N, std per body axis
+TURBULENCE_TORQUE = (2.5e-4, 2.5e-4, 0.4e-4)  # N m, std per body axis
+TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass
+
+# w @ _GYRO = (-w_y, w_x, 0)
+_GYRO = torch.tensor([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
+
+# Realisations of time-varying effects are drawn on a fixed grid from a fixed start, so that a
+# value depends only on the flight's seed and the time, however long the flight.
+REALISATION_RATE = 100.0  # Hz
+REALISATION_START = -30.0  # s before the trajectory starts (the simulator's pre-roll must be shorter)
+
+
+def _unit_band_noise(key: Sequence[int], t_end: float, channels: int) -> np.ndarray:
+    """``(N, channels)`` samples on the realisation grid up to ``t_end``: white noise through a
+    second-order Butterworth low-pass at :data:`TURBULENCE_BAND`, scaled to unit stationary std."""
+    n = int(np.ceil((t_end - REALISATION_START) * REALISATION_RATE)) + 2
+    b, a = butter(2, TURBULENCE_BAND / (REALISATION_RATE / 2))
+    impulse = lfilter(b, a, np.r_[1.0, np.zeros(20 * int(REALISATION_RATE / TURBULENCE_BAND))])
+    white = np.random.default_rng([*key, 1]).standard_normal((n, channels))
+    return lfilter(b, a, white, axis=0) / np.sqrt(np.sum(impulse**2))
 
 
 @dataclass(frozen=True, eq=False)
@@ -61,30 +108,25 @@ class World:
         """Delay (s) of the recorded rotor speeds behind the true ones."""
         return self.s("telemetry_delay") * TELEMETRY_DELAY
 
-    def _coeffs(self, dtype: torch.dtype, device, vehicle: Vehicle) -> dict[str, Tensor]:
-        key = (dtype, device, vehicle)
-        cache = self.__dict__.setdefault("_cache", {})
-        if key not in cache:
-            # constants of every active effect, built once: at a few flights per batch the
-            # simulator's 1 kHz loop is bound by per-call overhead, not arithmetic
-            def t(v):
-                return torch.tensor(v, dtype=dtype, device=device)
+    def inertia(self, vehicle: Vehicle) -> tuple[float, float, float]:
+        """The body's true inertia diagonal (kg m^2)."""
+        k = self.s("inertia_offset")
+        return tuple(j * (1 + k * d) for j, d in zip(vehicle.inertia, INERTIA_OFFSET))
 
-            M = dynamics.mixer_matrix(k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm, dtype=dtype, device=device)
-            r = t(COM_OFFSET) * self.s("com_offset")
-            cache[key] = {
-                "rotor_drag": t(ROTOR_DRAG) * self.s("rotor_drag"),
-                "body_drag": t(BODY_DRAG) * self.s("body_drag"),
-                # torque of the thrust about the displaced centre of mass: -r x (0, 0, T) = T (-r_y, r_x, 0)
-                "com_lever": torch.stack((-r[1], r[0], torch.zeros_like(r[0]))),
-                # extra wrench of rotors with k_f (1 + d_i): linear in Omega^2, (4 wrench, 4 rotors)
-                "asym": M * (t(MOTOR_ASYMMETRY) * self.s("motor_asymmetry")),
-                "spin_jr": t(dynamics.SPIN) * ROTOR_INERTIA * self.s("rotor_inertia"),
-            }
-        return cache[key]
+    def disturbance(self, key: Sequence[int], t_end: float) -> np.ndarray | None:
+        """The flight's turbulence, ``(N, 6)`` body force (N) and torque (N m) on the realisation
+        grid (:data:`REALISATION_START` + n / :data:`REALISATION_RATE`) up to ``t_end`` s; None
+        when the effect is off. ``key`` (whole numbers) identifies the flight; the same key
+        gives the same realisation."""
+        s = self.s("turbulence")
+        if not s:
+            return None
+        scale = s * np.array([*TURBULENCE_FORCE, *TURBULENCE_TORQUE])
+        return _unit_band_noise(key, t_end, 6) * scale
 
     def wrench(self, x: Tensor, omega: Tensor, omega_dot: Tensor, vehicle: Vehicle) -> tuple[Tensor, Tensor]:
-        """Extra body-frame force ``(..., 3)`` (N) and torque ``(..., 3)`` (N m).
+        """Extra body-frame force ``(..., 3)`` (N) and torque ``(..., 3)`` (N m) of the effects that
+        are functions of the state and the rotor speeds (no turbulence: see :class:`Nature`).
 
         Args:
             x: State ``(..., 13)``.
@@ -92,28 +134,193 @@ class World:
             omega_dot: Their time derivative ``(..., 4)`` (rad/s^2).
             vehicle: Nominal parameters (k_f, k_m, arm).
         """
+        return Nature([self], vehicle, dtype=x.dtype).wrench(None, x, omega, omega_dot)
+
+
+class Nature:
+    """The extra wrench of a batch of flights, each with its own world.
+
+    Args:
+        worlds: One world per flight, or one for all (the leading dimension of the states then
+            broadcasts).
+        vehicle: Nominal parameters.
+        disturbances: Per flight, the realisation of :meth:`World.disturbance` (or None).
+        extra: Per flight (or one for all), a user-supplied ``fn(t, x, omega, omega_dot) ->
+            (force_B, torque_B)`` in SI units, or None.
+    """
+
+    def __init__(self, worlds: Sequence[World], vehicle: Vehicle, *, disturbances: Sequence[np.ndarray | None] = (),
+                 extra: Sequence[ExtraWrench | None] | ExtraWrench | None = None, dtype=torch.float64) -> None:
+        self.B = len(worlds)
+        self.vehicle = vehicle
+
+        def stack(values) -> Tensor:  # (B, k)
+            return torch.tensor([list(v) for v in values], dtype=dtype)
+
+        def on(name: str) -> bool:
+            return any(w.s(name) for w in worlds)
+
+        s = {name: torch.tensor([[w.s(name)] for w in worlds], dtype=dtype) for name in EFFECTS}
+        M = dynamics.mixer_matrix(k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm, dtype=dtype)
+        # Constants of the active effects, one row per flight, built once; the effects that are
+        # linear in Omega^2 or dOmega/dt are gathered into one matrix each: the simulator's loop
+        # is bound by the number of tensor operations, not by arithmetic.
+        c: dict[str, Tensor] = {}
+        per_om2 = torch.zeros(self.B, 4, 6, dtype=dtype)  # wrench [F (3), tau (3)] per Omega_i^2
+        if on("com_offset"):
+            off = s["com_offset"] * torch.tensor(COM_OFFSET, dtype=dtype)
+            # torque of the thrust about the displaced centre of mass: -r x (0, 0, T) = T (-r_y, r_x, 0)
+            per_om2[:, :, 3] += -vehicle.k_f * off[:, 1:2]
+            per_om2[:, :, 4] += vehicle.k_f * off[:, 0:1]
+        if on("motor_asymmetry"):
+            # rotors with k_f (1 + d_i): extra thrust and torques linear in Omega_i^2
+            spread = (M * torch.tensor(MOTOR_ASYMMETRY, dtype=dtype)).T  # (4 rotors, [T, tau])
+            per_om2[:, :, 2] += s["motor_asymmetry"] * spread[:, 0]
+            per_om2[:, :, 3:] += s["motor_asymmetry"].unsqueeze(-1) * spread[:, 1:]
+        if on("com_offset") or on("motor_asymmetry"):
+            c["per_om2"] = per_om2
+        if on("rotor_inertia"):
+            spin_jr = s["rotor_inertia"] * torch.tensor(dynamics.SPIN, dtype=dtype) * ROTOR_INERTIA  # (B, 4)
+            c["spin_jr"] = spin_jr
+            # the reaction to spinning the rotors up: tau_z = -J_r sum s_i dOmega_i/dt
+            c["per_om_dot"] = F.pad(-spin_jr.unsqueeze(-1), (5, 0))  # (B, 4, 6)
+        if on("rotor_drag"):
+            K = s["rotor_drag"] * torch.tensor(ROTOR_DRAG, dtype=dtype)  # (B, 3)
+            r = torch.tensor([[xs * vehicle.arm, ys * vehicle.arm, ROTOR_HUB_HEIGHT]
+                              for xs, ys in zip(dynamics.ROTOR_X, dynamics.ROTOR_Y)], dtype=dtype)  # (4, 3) hubs
+            # F_i = -Omega_i K (v_B + w x r_i) sums to -K (sum_i Omega_i v_B + w x rho), rho = sum_i Omega_i r_i;
+            # sum_i r_i x F_i = -rho x (K v_B) + sum_i Omega_i [r_i]x K [r_i]x w
+            rx = torch.zeros(4, 3, 3, dtype=dtype)
+            rx[:, 0, 1], rx[:, 0, 2], rx[:, 1, 2] = -r[:, 2], r[:, 1], -r[:, 0]
+            rx = rx - rx.transpose(-1, -2)
+            c["drag_K"] = K
+            c["hub"] = r.unsqueeze(0).expand(self.B, 4, 3)
+            c["drag_rot"] = (rx.unsqueeze(0) @ torch.diag_embed(K).unsqueeze(1) @ rx.unsqueeze(0)).flatten(-2)  # (B, 4, 9)
+        if on("body_drag"):
+            c["body_drag"] = s["body_drag"] * torch.tensor(BODY_DRAG, dtype=dtype)
+        self.c = c
+        self.inertia = None
+        if on("inertia_offset"):
+            self.inertia = stack(w.inertia(vehicle) for w in worlds)  # (B, 3)
+        self.table = None
+        if any(d is not None for d in disturbances):
+            n = max(len(d) for d in disturbances if d is not None)
+            table = np.zeros((self.B, n, 6))
+            for i, d in enumerate(disturbances):
+                if d is not None:
+                    table[i, :len(d)] = d
+                    table[i, len(d):] = d[-1]
+            self.table = torch.from_numpy(table).to(dtype)
+        if extra is None or callable(extra):
+            self.extra = extra
+        else:
+            self.extra = list(extra) if any(fn is not None for fn in extra) else None
+        self.active = bool(c) or self.table is not None or self.extra is not None
+
+    @property
+    def timed(self) -> bool:
+        """Whether the wrench depends on time (turbulence or a user-supplied wrench)."""
+        return self.table is not None or self.extra is not None
+
+    def _per_flight(self, v: Tensor, x: Tensor) -> Tensor:
+        """``(B, *k)`` constants shaped to broadcast against ``x (B, ..., 13)``."""
+        return v.view(v.shape[0], *([1] * (x.dim() - 2)), *v.shape[1:]) if x.dim() > 2 else v
+
+    def _constants(self, x: Tensor) -> dict[str, Tensor]:
+        key = (x.dim(), x.dtype)
+        cache = self.__dict__.setdefault("_shaped", {})
+        if key not in cache:
+            cache[key] = {k: self._per_flight(v.to(x.dtype), x) for k, v in self.c.items()}
+        return cache[key]
+
+    def body_inertia(self, x: Tensor) -> Tensor | None:
+        """The true inertia diagonal shaped for ``x``, or None where it is the nominal one."""
+        return None if self.inertia is None else self._per_flight(self.inertia.to(x.dtype), x)
+
+    def _disturbance(self, t, x: Tensor) -> Tensor:
+        """Turbulence ``(..., 6)`` at time ``t`` (a float, or a tensor of ``x``'s leading shape)."""
+        pos = (t - REALISATION_START) * REALISATION_RATE
+        n = self.table.shape[1]
+        if not torch.is_tensor(t):
+            i0 = min(max(int(np.floor(pos)), 0), n - 2)
+            v = torch.lerp(self.table[:, i0], self.table[:, i0 + 1], min(max(pos - i0, 0.0), 1.0))  # (B, 6)
+            return self._per_flight(v, x) if x.dim() > 2 else v
+        i0 = pos.floor().clamp(0, n - 2)
+        w = (pos - i0).clamp(0, 1).unsqueeze(-1)
+        i0 = i0.long()
+        if self.table.shape[0] == 1:
+            lo, hi = self.table[0][i0], self.table[0][i0 + 1]
+        else:
+            b = torch.arange(self.table.shape[0]).view(-1, *([1] * (i0.dim() - 1))).expand_as(i0)
+            lo, hi = self.table[b, i0], self.table[b, i0 + 1]
+        return lo * (1 - w) + hi * w
+
+    def _extra(self, t, x: Tensor, omega: Tensor, omega_dot: Tensor) -> tuple[Tensor, Tensor]:
+        tt = t if torch.is_tensor(t) else torch.full(x.shape[:-1], float(t), dtype=x.dtype)
+        if callable(self.extra):
+            return self.extra(tt, x, omega, omega_dot)
+        force, torque = torch.zeros_like(x[..., :3]), torch.zeros_like(x[..., :3])
+        for fn in dict.fromkeys(fn for fn in self.extra if fn is not None):
+            rows = torch.tensor([g is fn for g in self.extra])
+            f, tq = fn(tt[rows], x[rows], omega[rows], omega_dot[rows])
+            force[rows], torque[rows] = force[rows] + f, torque[rows] + tq
+        return force, torque
+
+    def wrench(self, t, x: Tensor, omega: Tensor, omega_dot: Tensor) -> tuple[Tensor, Tensor]:
+        """Extra body-frame force ``(..., 3)`` (N) and torque ``(..., 3)`` (N m).
+
+        Args:
+            t: Time (s) from the start of the trajectory: a float, or a tensor of the states'
+                leading shape; None when no effect depends on time.
+            x: State ``(B, ..., 13)``.
+            omega: True rotor speeds ``(B, ..., 4)`` (rad/s).
+            omega_dot: Their time derivative ``(B, ..., 4)`` (rad/s^2).
+        """
         _, v, q, w = dynamics.split_state(x)
-        c = self._coeffs(x.dtype, x.device, vehicle)
-        force = torch.zeros_like(v)
-        torque = torch.zeros_like(w)
-        if self.s("rotor_drag") or self.s("body_drag"):
-            v_b = so3.quat_rotate(so3.quat_conj(q), v)  # air velocity in the body frame (no wind)
-            gain = omega.sum(-1, keepdim=True) * c["rotor_drag"] + c["body_drag"] * v_b.abs()
-            force = force - gain * v_b
-        om2 = omega * omega
-        if self.s("com_offset"):
-            torque = torque + (vehicle.k_f * om2.sum(-1, keepdim=True)) * c["com_lever"]
-        if self.s("motor_asymmetry"):
-            dw = om2 @ c["asym"].T  # (..., 4): extra thrust and torques
-            force = force + F.pad(dw[..., :1], (2, 0))
-            torque = torque + dw[..., 1:]
-        if self.s("rotor_inertia"):
+        c = self._constants(x)
+        wrench = None  # (..., 6): force, torque
+
+        def add(w6):
+            return w6 if wrench is None else wrench + w6
+
+        if "per_om2" in c:
+            wrench = add((omega * omega).unsqueeze(-1).mul(c["per_om2"]).sum(-2))
+        if "spin_jr" in c:
+            wrench = add(omega_dot.unsqueeze(-1).mul(c["per_om_dot"]).sum(-2))
             h = (omega * c["spin_jr"]).sum(-1, keepdim=True)  # rotor angular momentum along body z
-            yaw = -(omega_dot * c["spin_jr"]).sum(-1, keepdim=True)
-            # -w x (0, 0, h) = (-w_y h, w_x h, 0), plus the reaction to spinning the rotors up
-            torque = torque + torch.cat((-w[..., 1:2] * h, w[..., 0:1] * h, yaw), dim=-1)
+            # gyroscopic torque -w x (0, 0, h) = h (-w_y, w_x, 0)
+            wrench = wrench + F.pad(h * (w @ _GYRO.to(w.dtype)), (3, 0))
+        if "drag_K" in c or "body_drag" in c:
+            v_b = so3.quat_rotate(so3.quat_conj(q), v)  # air velocity in the body frame (no wind)
+            if "drag_K" in c:
+                K = c["drag_K"]
+                rho = (omega.unsqueeze(-1) * c["hub"]).sum(-2)  # sum_i Omega_i r_i
+                Kv = K * v_b
+                force = -(omega.sum(-1, keepdim=True) * Kv + K * torch.linalg.cross(w, rho, dim=-1))
+                rot = (omega.unsqueeze(-1) * c["drag_rot"]).sum(-2).unflatten(-1, (3, 3))
+                torque = (rot @ w.unsqueeze(-1)).squeeze(-1) - torch.linalg.cross(rho, Kv, dim=-1)
+                wrench = add(torch.cat((force, torque), -1))
+            if "body_drag" in c:
+                wrench = add(F.pad(-c["body_drag"] * v_b.abs() * v_b, (0, 3)))
+        if self.table is not None:
+            wrench = add(self._disturbance(t, x))
+        if wrench is None:
+            wrench = torch.zeros_like(x[..., :6])
+        force, torque = wrench[..., :3], wrench[..., 3:]
+        if self.extra is not None:
+            f, tq = self._extra(t, x, omega, omega_dot)
+            force, torque = force + f, torque + tq
         return force, torque
 
 
-# The default world: every effect at a realistic magnitude, as on the real vehicle.
-DEFAULT_WORLD: dict[str, float] = {name: 1.0 for name in EFFECTS}
+# The default world: the effects the real vehicle has, at realistic magnitudes, chosen so that
+# the benchmark's results show the pattern of the paper's real flights (reports/sim/stats.md).
+DEFAULT_WORLD: dict[str, float] = {
+    "rotor_drag": 1.0,
+    "body_drag": 1.0,
+    "telemetry_delay": 1.0,
+    "com_offset": 1.0,
+    "motor_asymmetry": 1.0,
+    "rotor_inertia": 1.0,
+    "turbulence": 1.0,
+}
