@@ -9,10 +9,9 @@ from tqdm.auto import tqdm
 
 from nanosysid import sim
 from nanosysid.bags.recorder import RecorderConfig, record_flight
-from nanosysid.dataio import atomic_dir, atomic_file, write_flight_csv
+from nanosysid.dataio import atomic_dir, write_flight_csv
 from nanosysid.errors import ConfigError
 from nanosysid.sim.simulator import flights_from_record, simulate_raw
-from nanosysid.sim.stats import stats_markdown, trajectory_stats
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.simulate")
@@ -24,7 +23,7 @@ def main(cfg: DictConfig) -> None:
     Writes ``bags/<flight>/`` (a ROS 2 bag per flight), the truth beside each bag
     (``bags/<flight>.truth.parquet`` and ``.truth.json``), and the simulator's direct 100 Hz
     output in the published layout (``csv/<flight>.csv``; the split stage assigns them to
-    train and test); the trajectory statistics go to ``<paths.sim_report>/stats.md``.
+    train and test).
     """
     s = cfg.sim
     vehicle = vehicle_of(cfg)
@@ -43,8 +42,6 @@ def main(cfg: DictConfig) -> None:
             record_flight(raw, i, tmp / "bags" / f.name, topics=topics, cfg=rec_cfg, noise=sim_cfg.noise,
                           vehicle=vehicle)
             write_flight_csv(f, tmp / "csv" / f"{f.name}.csv")
-    with atomic_file(Path(cfg.paths.sim_report) / "stats.md") as f:
-        f.write_text(stats_markdown(trajectory_stats(flights)))
     log.info("simulated and recorded %d flights into %s", len(flights), out)
 
 

@@ -2,7 +2,7 @@
 
 It is the physical limit of the benchmark on simulated data. It knows every effect of the world,
 the time-varying ones too: it is a *timed* predictor (:func:`nanosysid.benchmark.evaluate` gives
-it each window's start time and the flight's name), and replays the flight's turbulence from
+it each window's start time and the flight's name), and replays the flight's turbulence and rotor thrust fluctuations from
 the simulation's seed and the user-supplied wrench at the right times. What it still cannot
 know is the measurement noise on ``y0`` and on ``u``, the rotor speeds between samples (it
 interpolates linearly), and, with ``telemetry_delay``, the last rotor speeds of a window, which
@@ -49,12 +49,13 @@ class Oracle:
         self._f = functools.partial(dynamics.quad_dynamics, **params)
 
     def _nature(self, flight: str | None, t_end: float) -> Nature:
-        """The world's wrench on one flight: its turbulence realisation replayed from its name."""
+        """The world's wrench on one flight: its realisation of the time-varying effects replayed
+        from its name."""
         disturbance = None
-        if self.world.s("turbulence"):
+        if self.world.s("turbulence") or self.world.s("unsteady_thrust"):
             if flight is None:
-                raise PredictionError("the oracle replays each flight's turbulence: call it with flight=<its name> "
-                                      "and t0 (benchmark.evaluate does)")
+                raise PredictionError("the oracle replays each flight's turbulence and thrust fluctuations: call it "
+                                      "with flight=<its name> and t0 (benchmark.evaluate does)")
             trajectory, run = parse_flight_name(flight)
             disturbance = self.world.disturbance(flight_key(self.seed, trajectory, run), t_end)
         return Nature([self.world], self.vehicle, disturbances=[disturbance], extra=self.extra_wrench)
@@ -67,7 +68,7 @@ class Oracle:
         t = None if t0 is None else as_tensor(t0, torch.float64).reshape(-1)
         nature = self._nature(flight, 1.0 if t is None else float(t.max()) + (H + 2) * self.dt)
         if nature.timed and t is None:
-            raise PredictionError("the oracle's world depends on time (turbulence or an extra wrench): call it with "
+            raise PredictionError("the oracle's world depends on time (random effects or an extra wrench): call it with "
                                   "t0=<each window's start, s> (benchmark.evaluate does)")
         # rotor speeds move linearly from one sample to the next; the last one is held
         om_next = torch.cat((om[:, 1:], om[:, -1:]), dim=1)

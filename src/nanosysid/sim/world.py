@@ -31,7 +31,7 @@ from torch import Tensor
 from nanosysid import dynamics, so3
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["EFFECTS", "World", "Nature", "DEFAULT_WORLD", "ExtraWrench", "REALISATION_START"]
+__all__ = ["EFFECTS", "DEPENDS_ON", "World", "Nature", "DEFAULT_WORLD", "ExtraWrench", "REALISATION_START"]
 
 # fn(t (...,), x (..., 13), omega (..., 4), omega_dot (..., 4)) -> (force_B (..., 3), torque_B (..., 3))
 ExtraWrench = Callable[[Tensor, Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
@@ -46,8 +46,24 @@ EFFECTS: dict[str, str] = {
     "motor_asymmetry": "per-rotor thrust (and drag-torque) coefficients k_F (1 + d_i), d = (+3.0, -2.0, +2.5, -3.5) %",
     "rotor_inertia": "rotor inertia J_r = 3.9e-8 kg m^2: yaw reaction -J_r sum s_i dOmega_i/dt and gyroscopic -w x h_rotors",
     "inertia_offset": "the body's inertia is (+15, +15, +25) % off the nominal diagonal",
-    "turbulence": "band-limited random body force and torque (recirculating downwash, unsteady rotor aerodynamics): "
-                  "std (8, 8, 10) mN and (2.5, 2.5, 0.4) 1e-4 N m, low-pass 1 Hz; a new realisation every flight",
+    "turbulence": "band-limited random body force and torque (downwash recirculating in the arena): std (8, 8, 10) mN "
+                  "and (2.5, 2.5, 0.4) 1e-4 N m, low-pass 1 Hz; a new realisation every flight",
+    "unsteady_thrust": "each rotor's thrust and drag torque fluctuate around k Omega^2 (unsteady aerodynamics of the "
+                       "rotor in its own disturbed inflow): factors 1 + e_i(t), e_i of std 4 %, low-pass 10 Hz, "
+                       "independent per rotor; a new realisation every flight",
+}
+
+# What each effect is a function of: only the state-dependent ones can a model of the state learn.
+DEPENDS_ON: dict[str, str] = {
+    "rotor_drag": "state, rotor speeds",
+    "body_drag": "state",
+    "telemetry_delay": "the recorded rotor speeds' history",
+    "com_offset": "rotor speeds",
+    "motor_asymmetry": "rotor speeds",
+    "rotor_inertia": "state, rotor speeds and their rates",
+    "inertia_offset": "state, rotor speeds (the body's response)",
+    "turbulence": "time: a new random realisation every flight",
+    "unsteady_thrust": "time and rotor speeds: a new random realisation every flight",
 }
 
 # Physical parameters at strength 1.0.
@@ -69,6 +85,12 @@ INERTIA_OFFSET = (0.15, 0.15, 0.25)
 TURBULENCE_FORCE = (8.0e-3, 8.0e-3, 10.0e-3)  # N, std per body axis
 TURBULENCE_TORQUE = (2.5e-4, 2.5e-4, 0.4e-4)  # N m, std per body axis
 TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass
+# The paper's "unmodelled actuation": the thrust a rotor gives at a measured speed is not a fixed
+# k_F Omega^2; the controller answers the fluctuation with the rotor speeds, so the measured speeds
+# tell less of the torque than the quadratic model says. Its size, like the turbulence's, is set
+# by the physics and Phys+Res rows of the paper (reports/sim/stats.md).
+UNSTEADY_THRUST = 0.04  # std of each rotor's relative thrust and drag-torque fluctuation
+UNSTEADY_THRUST_BAND = 10.0  # Hz
 
 # w @ _GYRO = (-w_y, w_x, 0)
 _GYRO = torch.tensor([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
@@ -79,13 +101,13 @@ REALISATION_RATE = 100.0  # Hz
 REALISATION_START = -30.0  # s before the trajectory starts (the simulator's pre-roll must be shorter)
 
 
-def _unit_band_noise(key: Sequence[int], t_end: float, channels: int) -> np.ndarray:
+def _unit_band_noise(key: Sequence[int], t_end: float, channels: int, band: float) -> np.ndarray:
     """``(N, channels)`` samples on the realisation grid up to ``t_end``: white noise through a
-    second-order Butterworth low-pass at :data:`TURBULENCE_BAND`, scaled to unit stationary std."""
+    second-order Butterworth low-pass at ``band`` Hz, scaled to unit stationary std."""
     n = int(np.ceil((t_end - REALISATION_START) * REALISATION_RATE)) + 2
-    b, a = butter(2, TURBULENCE_BAND / (REALISATION_RATE / 2))
-    impulse = lfilter(b, a, np.r_[1.0, np.zeros(20 * int(REALISATION_RATE / TURBULENCE_BAND))])
-    white = np.random.default_rng([*key, 1]).standard_normal((n, channels))
+    b, a = butter(2, band / (REALISATION_RATE / 2))
+    impulse = lfilter(b, a, np.r_[1.0, np.zeros(20 * int(np.ceil(REALISATION_RATE / band)))])
+    white = np.random.default_rng(list(key)).standard_normal((n, channels))
     return lfilter(b, a, white, axis=0) / np.sqrt(np.sum(impulse**2))
 
 
@@ -114,15 +136,21 @@ class World:
         return tuple(j * (1 + k * d) for j, d in zip(vehicle.inertia, INERTIA_OFFSET))
 
     def disturbance(self, key: Sequence[int], t_end: float) -> np.ndarray | None:
-        """The flight's turbulence, ``(N, 6)`` body force (N) and torque (N m) on the realisation
-        grid (:data:`REALISATION_START` + n / :data:`REALISATION_RATE`) up to ``t_end`` s; None
-        when the effect is off. ``key`` (whole numbers) identifies the flight; the same key
-        gives the same realisation."""
-        s = self.s("turbulence")
-        if not s:
+        """The flight's time-varying effects on the realisation grid (:data:`REALISATION_START` +
+        n / :data:`REALISATION_RATE`) up to ``t_end`` s, ``(N, 10)``: the turbulence's body force
+        (N) and torque (N m), and each rotor's relative thrust fluctuation; None when both are
+        off. ``key`` (whole numbers) identifies the flight; the same key gives the same
+        realisation, each effect from its own stream."""
+        if not (self.s("turbulence") or self.s("unsteady_thrust")):
             return None
-        scale = s * np.array([*TURBULENCE_FORCE, *TURBULENCE_TORQUE])
-        return _unit_band_noise(key, t_end, 6) * scale
+        out = np.zeros((int(np.ceil((t_end - REALISATION_START) * REALISATION_RATE)) + 2, 10))
+        if self.s("turbulence"):
+            scale = self.s("turbulence") * np.array([*TURBULENCE_FORCE, *TURBULENCE_TORQUE])
+            out[:, :6] = _unit_band_noise([*key, 1], t_end, 6, TURBULENCE_BAND) * scale
+        if self.s("unsteady_thrust"):
+            scale = self.s("unsteady_thrust") * UNSTEADY_THRUST
+            out[:, 6:] = _unit_band_noise([*key, 2], t_end, 4, UNSTEADY_THRUST_BAND) * scale
+        return out
 
     def wrench(self, x: Tensor, omega: Tensor, omega_dot: Tensor, vehicle: Vehicle) -> tuple[Tensor, Tensor]:
         """Extra body-frame force ``(..., 3)`` (N) and torque ``(..., 3)`` (N m) of the effects that
@@ -199,13 +227,15 @@ class Nature:
         if on("body_drag"):
             c["body_drag"] = s["body_drag"] * torch.tensor(BODY_DRAG, dtype=dtype)
         self.c = c
+        self.mixer_t = M.T
+        self.unsteady = on("unsteady_thrust")
         self.inertia = None
         if on("inertia_offset"):
             self.inertia = stack(w.inertia(vehicle) for w in worlds)  # (B, 3)
         self.table = None
         if any(d is not None for d in disturbances):
             n = max(len(d) for d in disturbances if d is not None)
-            table = np.zeros((self.B, n, 6))
+            table = np.zeros((self.B, n, 10))
             for i, d in enumerate(disturbances):
                 if d is not None:
                     table[i, :len(d)] = d
@@ -238,7 +268,7 @@ class Nature:
         return None if self.inertia is None else self._per_flight(self.inertia.to(x.dtype), x)
 
     def _disturbance(self, t, x: Tensor) -> Tensor:
-        """Turbulence ``(..., 6)`` at time ``t`` (a float, or a tensor of ``x``'s leading shape)."""
+        """The realisation ``(..., 10)`` at time ``t`` (a float, or a tensor of ``x``'s leading shape)."""
         pos = (t - REALISATION_START) * REALISATION_RATE
         n = self.table.shape[1]
         if not torch.is_tensor(t):
@@ -303,7 +333,11 @@ class Nature:
             if "body_drag" in c:
                 wrench = add(F.pad(-c["body_drag"] * v_b.abs() * v_b, (0, 3)))
         if self.table is not None:
-            wrench = add(self._disturbance(t, x))
+            d = self._disturbance(t, x)
+            wrench = add(d[..., :6])
+            if self.unsteady:
+                # thrust and drag torque of rotors whose k_F and k_M are (1 + e_i) times the nominal
+                wrench = wrench + F.pad((d[..., 6:] * omega * omega) @ self.mixer_t, (2, 0))
         if wrench is None:
             wrench = torch.zeros_like(x[..., :6])
         force, torque = wrench[..., :3], wrench[..., 3:]
@@ -323,4 +357,5 @@ DEFAULT_WORLD: dict[str, float] = {
     "motor_asymmetry": 1.0,
     "rotor_inertia": 1.0,
     "turbulence": 1.0,
+    "unsteady_thrust": 1.0,
 }

@@ -1,0 +1,161 @@
+"""The dataset and the benchmark's results beside the paper's real flights.
+
+Three comparisons, each a table and a verdict: the trajectory statistics (within a tolerance of
+the paper's table), the naive and physics rows at h = 10 and 50 for position and velocity
+(within a factor of the paper's: the one place where a simulated world can be calibrated
+against real flight), and the *pattern* of the results: each learned model's SimErr over the
+physics model's, beside the paper's ratio, and the best model of each SimErr column where the
+paper's margin is large enough to be a finding rather than noise.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+from nanosysid.benchmark import Scores
+from nanosysid.metrics import QUANTITIES
+
+__all__ = ["PAPER_RESULTS", "PAPER_MODELS", "Comparison", "compare_results", "results_markdown"]
+
+# The paper's table of numerical performance (Melon test flights): MAE at h = 1, 10, 50 and the
+# SimErr (sum over h = 1..50), per quantity, for its five models (our names).
+PAPER_RESULTS: dict[str, dict[str, tuple[float, float, float, float]]] = {
+    "naive": {"p": (0.0143, 0.1430, 0.6797, 17.7878), "v": (0.0329, 0.3182, 1.4749, 38.9241),
+              "R": (0.0071, 0.0692, 0.3041, 8.2138), "w": (0.0796, 0.3596, 0.8837, 29.0866)},
+    "physics": {"p": (0.0013, 0.0126, 0.1269, 2.3223), "v": (0.0080, 0.0570, 0.5781, 10.6232),
+                "R": (0.0011, 0.0205, 0.2544, 5.1013), "w": (0.0796, 0.3596, 0.8837, 29.0866)},
+    "residual": {"p": (0.0032, 0.0305, 0.1712, 4.0519), "v": (0.0116, 0.0890, 0.5720, 12.5809),
+                 "R": (0.0022, 0.0331, 0.2268, 6.0591), "w": (0.1138, 0.5949, 0.9005, 35.5735)},
+    "phys_res": {"p": (0.0016, 0.0166, 0.1119, 2.3625), "v": (0.0092, 0.0613, 0.5556, 10.4033),
+                 "R": (0.0027, 0.0376, 0.2306, 6.1534), "w": (0.0912, 0.4880, 0.5979, 28.9873)},
+    "lstm": {"p": (0.0079, 0.0390, 0.2572, 5.9711), "v": (0.0247, 0.1175, 0.7407, 16.7207),
+             "R": (0.0066, 0.0372, 0.2325, 5.6525), "w": (0.1021, 0.4292, 1.2407, 35.8353)},
+}
+PAPER_MODELS = tuple(PAPER_RESULTS)
+_HORIZONS = (1, 10, 50)
+_LABEL = {"p": "p", "v": "v", "R": "R", "w": "ω"}
+
+
+@dataclass
+class Comparison:
+    """The figures of the comparison and whether each criterion holds.
+
+    Attributes:
+        rows: ``(model, quantity, h) -> (ours, paper)`` for the naive and physics rows at h = 10, 50.
+        ratios: ``(model, quantity) -> (ours, paper)``: the model's SimErr over physics'.
+        best: ``quantity -> (ours, paper, paper's margin)``: the model with the least SimErr.
+        checks: criterion -> whether it holds.
+    """
+
+    rows: dict[tuple[str, str, int], tuple[float, float]] = field(default_factory=dict)
+    ratios: dict[tuple[str, str], tuple[float, float]] = field(default_factory=dict)
+    best: dict[str, tuple[str, str, float]] = field(default_factory=dict)
+    checks: dict[str, bool] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "rows": [{"model": m, "quantity": k, "h": h, "ours": a, "paper": b} for (m, k, h), (a, b) in self.rows.items()],
+            "ratios": [{"model": m, "quantity": k, "ours": a, "paper": b} for (m, k), (a, b) in self.ratios.items()],
+            "best": {k: {"ours": a, "paper": b, "paper_margin": c} for k, (a, b, c) in self.best.items()},
+            "checks": self.checks,
+        }
+
+
+def _best(simerr: Mapping[str, float]) -> tuple[str, float]:
+    """The model with the least value, and its margin: the runner-up's value over it, minus 1."""
+    order = sorted(simerr, key=simerr.get)
+    return order[0], simerr[order[1]] / simerr[order[0]] - 1
+
+
+def compare_results(scores: Mapping[str, Scores], *, factor: float = 1.5, ratio_tolerance: float = 0.25,
+                    margin: float = 0.10, ratio_models: Sequence[str] = ("phys_res",)) -> Comparison:
+    """Our results against the paper's.
+
+    Args:
+        scores: Scores of (some of) the paper's five models, by our names.
+        factor: The naive and physics rows at h = 10, 50 (p, v) must be within this factor.
+        ratio_tolerance: Each of ``ratio_models``' SimErr over physics' must be within this
+            relative distance of the paper's ratio, in every column.
+        margin: Where the paper's best model of a SimErr column leads by more than this, ours
+            must be the same.
+    """
+    c = Comparison()
+    for m in ("naive", "physics"):
+        if m in scores:
+            for k in ("p", "v"):
+                for h in (10, 50):
+                    c.rows[(m, k, h)] = (float(scores[m].mae[k][h - 1]), PAPER_RESULTS[m][k][_HORIZONS.index(h)])
+    if c.rows:
+        c.checks[f"naive and physics rows within x{factor:g}"] = all(
+            1 / factor <= a / b <= factor for a, b in c.rows.values())
+    if "physics" in scores:
+        for m in PAPER_MODELS:
+            if m in scores and m not in ("naive", "physics"):
+                for k in QUANTITIES:
+                    c.ratios[(m, k)] = (scores[m].simerr[k] / scores["physics"].simerr[k],
+                                        PAPER_RESULTS[m][k][3] / PAPER_RESULTS["physics"][k][3])
+        for m in ratio_models:
+            if (m, "p") in c.ratios:
+                c.checks[f"{m} / physics within {ratio_tolerance:.0%} of the paper's ratio"] = all(
+                    abs(c.ratios[(m, k)][0] / c.ratios[(m, k)][1] - 1) <= ratio_tolerance for k in QUANTITIES)
+    if all(m in scores for m in PAPER_MODELS):
+        for k in QUANTITIES:
+            ours, _ = _best({m: scores[m].simerr[k] for m in PAPER_MODELS})
+            paper, paper_margin = _best({m: PAPER_RESULTS[m][k][3] for m in PAPER_MODELS})
+            c.best[k] = (ours, paper, paper_margin)
+        c.checks[f"best model of each SimErr column as the paper's where its margin is over {margin:.0%}"] = all(
+            ours == paper for ours, paper, pm in c.best.values() if pm > margin)
+    return c
+
+
+def _mark(ok: bool) -> str:
+    return "✓" if ok else "✗"
+
+
+def results_markdown(c: Comparison, *, factor: float = 1.5, ratio_tolerance: float = 0.25, margin: float = 0.10) -> str:
+    """The comparison as Markdown sections (no heading of the document's own)."""
+    L: list[str] = []
+    if c.rows:
+        L += ["## The naive and physics rows against the paper's", "",
+              f"MAE at h = 10 and 50 (0.1 and 0.5 s) on the test flights: ours / paper (ratio); a ratio outside "
+              f"1/{factor:g} .. {factor:g} is marked ✗.", "",
+              "| model | p h=10 [m] | p h=50 [m] | v h=10 [m/s] | v h=50 [m/s] |", "|---|---|---|---|---|"]
+        for m in ("naive", "physics"):
+            cells = []
+            for k in ("p", "v"):
+                for h in (10, 50):
+                    if (m, k, h) in c.rows:
+                        a, b = c.rows[(m, k, h)]
+                        cells.append(f"{a:.4f} / {b:.4f} ({a / b:.2f}{'' if 1 / factor <= a / b <= factor else ' ✗'})")
+            if cells:
+                L.append(f"| {m} | " + " | ".join(cells) + " |")
+        L.append("")
+    if c.ratios:
+        L += ["## The pattern of the results: SimErr over the physics model's", "",
+              "Each learned model's SimErr (sum of the MAE over h = 1..50) divided by the physics model's, per "
+              "quantity: on the paper's real flights the learned models barely beat physics, because real flight has "
+              f"effects no model of the state can know. Ours beside the paper's; ✓ where ours is within "
+              f"{ratio_tolerance:.0%} of the paper's ratio.", "",
+              "| SimErr ratio | " + " | ".join(_LABEL[k] for k in QUANTITIES) + " |",
+              "|---|" + "---|" * len(QUANTITIES)]
+        for m in dict.fromkeys(m for m, _ in c.ratios):
+            L.append(f"| {m} / physics, paper | " + " | ".join(f"{c.ratios[(m, k)][1]:.2f}" for k in QUANTITIES) + " |")
+            L.append(f"| {m} / physics, ours | " + " | ".join(
+                f"{c.ratios[(m, k)][0]:.2f} {_mark(abs(c.ratios[(m, k)][0] / c.ratios[(m, k)][1] - 1) <= ratio_tolerance)}"
+                for k in QUANTITIES) + " |")
+        L.append("")
+    if c.best:
+        L += ["## The best model of each SimErr column", "",
+              f"Among the paper's five models. Where the paper's best leads the runner-up by more than {margin:.0%} "
+              "it is a finding and ours must be the same; below that the paper's order is within its noise.", "",
+              "| quantity | paper's best | its margin | ours | must match |", "|---|---|---|---|---|"]
+        for k, (ours, paper, pm) in c.best.items():
+            must = pm > margin
+            L.append(f"| {_LABEL[k]} | {paper} | {pm:.1%} | {ours} | "
+                     f"{(_mark(ours == paper) if must else 'no')} |")
+        L.append("")
+    if c.checks:
+        L += ["## Verdict", ""] + [f"- {_mark(ok)} {name}" for name, ok in c.checks.items()] + [""]
+    return "\n".join(L)
+

@@ -1,0 +1,56 @@
+"""compare: the dataset and the benchmark's results against the paper's real flights
+(trajectory statistics, the naive and physics rows, the pattern of the results), and the
+simulated world's effects."""
+
+import json
+import logging
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from nanosysid import benchmark
+from nanosysid.dataio import atomic_file
+from nanosysid.report import paper, tables
+from nanosysid.sim.stats import stats_markdown, trajectory_stats
+from nanosysid.sim.world import DEFAULT_WORLD, DEPENDS_ON, EFFECTS
+from stages.common import plain, run_stage
+
+log = logging.getLogger("nanosysid.compare")
+
+
+def world_markdown(strengths: dict[str, float]) -> str:
+    """The simulated world's effects: strength in this dataset, what each does, what it depends on."""
+    L = ["## The simulated world", "",
+         "Effects of nature in this dataset (`sim.effects`; 1.0 is a realistic magnitude, 0 off). Only the ones that "
+         "depend on the state and the rotor speeds can a model learn; the turbulence is new in every flight.", "",
+         "| effect | strength | default world | depends on | what it does |", "|---|---|---|---|---|"]
+    for name, text in EFFECTS.items():
+        L.append(f"| `{name}` | {float(strengths.get(name, 0.0)):g} | {DEFAULT_WORLD.get(name, 0.0):g} | "
+                 f"{DEPENDS_ON[name]} | {text} |")
+    return "\n".join(L) + "\n"
+
+
+def main(cfg: DictConfig) -> None:
+    """``<paths.sim_report>/stats.md`` (and ``stats.json``: the figures and each criterion's verdict)."""
+    names = [m for m in paper.PAPER_MODELS if m in cfg.models]
+    scores = tables.load_scores(cfg.paths.eval, names)
+    bench = benchmark.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
+    comparison = paper.compare_results(scores)
+    source = str(cfg.data.source)
+    parts = ["# The dataset against the paper's real flights", "",
+             f"Data: `{source}` flights ({len(bench.train)} for training, {len(bench.test)} for testing); every model "
+             "scored on the test flights by the evaluate stage.", ""]
+    if source.startswith("sim"):
+        parts.append(world_markdown(plain(cfg.sim.effects)))
+    parts.append(stats_markdown(trajectory_stats(bench.train + bench.test)).replace("# ", "## ", 1))
+    parts.append(paper.results_markdown(comparison))
+    out = Path(cfg.paths.sim_report)
+    with atomic_file(out / "stats.md") as tmp:
+        tmp.write_text("\n".join(parts))
+    with atomic_file(out / "stats.json") as tmp:
+        tmp.write_text(json.dumps(comparison.to_dict(), indent=1) + "\n")
+    log.info("compare: %s", ", ".join(f"{k}: {'yes' if v else 'no'}" for k, v in comparison.checks.items()))
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_stage(main, description=__doc__))
