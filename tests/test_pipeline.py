@@ -10,8 +10,8 @@ import pytest
 
 from nanosysid import config
 from nanosysid.dataio import read_flight_csv
-from stages import (discover, evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report, simulate,
-                    split, sync, train, visualize)
+from stages import (compare, discover, evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report,
+                    simulate, split, sync, train, visualize)
 from stages.common import run_stage
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -94,7 +94,6 @@ def test_simulate_records_bags_truth_and_direct_csvs(tiny):
     csvs = sorted(str(p.relative_to(raw / "csv")) for p in (raw / "csv").rglob("*.csv"))
     assert csvs == ["chirp_20250601_run1.csv", "chirp_20250601_run2.csv", "melon_20250601_run1.csv",
                     "melon_20250601_run2.csv"]
-    assert "| melon | 3.00 / 65.00 (0.05 ✗)" in (tiny / "sim" / "stats.md").read_text()
 
 
 def test_processed_flights_match_the_truth(tiny):
@@ -195,6 +194,25 @@ def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
     m = json.loads((tiny / "eval" / "lstm" / "scores.json").read_text())
     h10 = next(line for line in curves if line.startswith("10,lstm,")).split(",")
     assert float(h10[4]) == pytest.approx(m["mae"]["R"][9], rel=1e-6)
+
+
+def test_compare_sets_the_dataset_beside_the_paper(tiny):
+    tiny = evaluated(tiny)
+    assert run(compare, tiny, "sim.effects.inertia_offset=0.5") == 0
+    text = (tiny / "sim" / "stats.md").read_text()
+    world = md_table(text, "## The simulated world")
+    assert world["`inertia_offset`"][:2] == ["0.5", "0"] and world["`turbulence`"][:2] == ["1", "1"]
+    assert "| melon | 2.99 / 65.00 (0.05 ✗)" in text  # the processed flight: 300 samples
+    ratios = md_table(text, "## The pattern of the results")
+    simerr = {m: json.loads((tiny / "eval" / m / "metrics.json").read_text())["simerr"] for m in LEARNED + ("physics",)}
+    for m in LEARNED:
+        assert [float(c.split()[0]) for c in ratios[f"{m} / physics, ours"]] == pytest.approx(
+            [simerr[m][k] / simerr["physics"][k] for k in "pvRw"], abs=5e-3)
+        assert ratios[f"{m} / physics, paper"][0] == {"residual": "1.74", "phys_res": "1.02", "lstm": "2.57"}[m]
+    record = json.loads((tiny / "sim" / "stats.json").read_text())
+    assert set(record["best"]) == set("pvRw") and len(record["checks"]) == 3
+    naive_p10 = next(r for r in record["rows"] if r["model"] == "naive" and r["quantity"] == "p" and r["h"] == 10)
+    assert naive_p10["paper"] == 0.1430
 
 
 @pytest.mark.parametrize("model", ["physics", "lstm", "discovered"])

@@ -80,3 +80,65 @@ def test_euler_angles_of_known_rotations():
         qr, qp, qy = (so3.quat_exp(torch.tensor(a) * axes[i]) for i, a in enumerate((r, p, y)))
         q.append(so3.quat_mul(qy, so3.quat_mul(qp, qr)).numpy())
     assert euler_deg(np.array(q)) == pytest.approx(np.degrees(angles), abs=1e-9)
+
+
+# ---- the dataset against the paper ------------------------------------------------------
+
+# The paper's table of numerical performance, copied by hand: (h1, h10, h50, SimErr) per quantity.
+PAPER = {
+    "naive": {"p": (0.0143, 0.1430, 0.6797, 17.7878), "v": (0.0329, 0.3182, 1.4749, 38.9241),
+              "R": (0.0071, 0.0692, 0.3041, 8.2138), "w": (0.0796, 0.3596, 0.8837, 29.0866)},
+    "physics": {"p": (0.0013, 0.0126, 0.1269, 2.3223), "v": (0.0080, 0.0570, 0.5781, 10.6232),
+                "R": (0.0011, 0.0205, 0.2544, 5.1013), "w": (0.0796, 0.3596, 0.8837, 29.0866)},
+    "residual": {"p": (0.0032, 0.0305, 0.1712, 4.0519), "v": (0.0116, 0.0890, 0.5720, 12.5809),
+                 "R": (0.0022, 0.0331, 0.2268, 6.0591), "w": (0.1138, 0.5949, 0.9005, 35.5735)},
+    "phys_res": {"p": (0.0016, 0.0166, 0.1119, 2.3625), "v": (0.0092, 0.0613, 0.5556, 10.4033),
+                 "R": (0.0027, 0.0376, 0.2306, 6.1534), "w": (0.0912, 0.4880, 0.5979, 28.9873)},
+    "lstm": {"p": (0.0079, 0.0390, 0.2572, 5.9711), "v": (0.0247, 0.1175, 0.7407, 16.7207),
+             "R": (0.0066, 0.0372, 0.2325, 5.6525), "w": (0.1021, 0.4292, 1.2407, 35.8353)},
+}
+
+
+def paper_like(model, scale=None):
+    """Scores whose MAE at h = 1, 10, 50 and SimErr are the paper's (times ``scale[k]``)."""
+    mae = {}
+    for k, (h1, h10, h50, simerr) in PAPER[model].items():
+        f = (scale or {}).get(k, 1.0)
+        m = np.full(50, (simerr - h1 - h10 - h50) / 47)
+        m[0], m[9], m[49] = h1, h10, h50
+        mae[k] = m * f
+    return benchmark.Scores(mae=mae, n_windows=1)
+
+
+def test_the_papers_own_results_meet_every_criterion():
+    from nanosysid.report import paper
+
+    c = paper.compare_results({m: paper_like(m) for m in PAPER})
+    assert all(c.checks.values()) and len(c.checks) == 3
+    # Phys+Res over physics, worked by hand: 2.3625 / 2.3223, 10.4033 / 10.6232, 6.1534 / 5.1013,
+    # 28.9873 / 29.0866
+    for k, ratio in zip("pvRw", (1.01731, 0.97930, 1.20624, 0.99659)):
+        ours, theirs = c.ratios[("phys_res", k)]
+        assert ours == pytest.approx(ratio, abs=1e-5) and theirs == pytest.approx(ratio, abs=1e-5)
+    # the paper's best of each SimErr column and its margin: R is physics by 5.6525 / 5.1013 - 1 = 10.8 %
+    assert c.best["R"] == ("physics", "physics", pytest.approx(0.10805, abs=1e-4))
+    assert c.best["p"][1] == "physics" and c.best["v"][1] == "phys_res" and c.best["w"][1] == "phys_res"
+
+
+def test_a_pattern_unlike_the_papers_fails_its_criteria():
+    from nanosysid.report import paper
+
+    # a Phys+Res 30 % better on R than the paper's: its ratio 0.84 is 30 % off 1.21, and it is now the best on R
+    rows = {m: paper_like(m) for m in PAPER}
+    rows["phys_res"] = paper_like("phys_res", {"R": 0.7})
+    c = paper.compare_results(rows)
+    assert not c.checks["phys_res / physics within 25% of the paper's ratio"]
+    assert c.best["R"][0] == "phys_res"
+    assert not c.checks["best model of each SimErr column as the paper's where its margin is over 10%"]
+    # a physics row twice the paper's at every horizon is outside x1.5; the ratios move with it
+    rows = {m: paper_like(m) for m in PAPER}
+    rows["physics"] = paper_like("physics", {k: 2.0 for k in "pvRw"})
+    c = paper.compare_results(rows)
+    assert not c.checks["naive and physics rows within x1.5"]
+    text = paper.results_markdown(c)
+    assert "0.0252 / 0.0126 (2.00 ✗)" in text and "- ✗ naive and physics rows within x1.5" in text

@@ -198,22 +198,24 @@ def test_rotor_inertia_yaw_reaction_and_gyroscopic_torque():
     assert torch.allclose(t[0], torch.tensor([0.0, h, 0.0], dtype=torch.float64))  # -w x h
 
 
-def test_turbulence_is_band_limited_with_its_stated_size_and_replays_from_the_seed():
-    """One long realisation: each channel's std is the stated one (sampling error of a 1 Hz
-    process over 2000 s is about 2 %), almost no power above 5 Hz, the same for the same key and
-    a prefix of a longer one, another for another flight."""
-    world = fx.World({"turbulence": 1.0})
+def test_random_effects_are_band_limited_with_their_stated_size_and_replay_from_the_seed():
+    """One long realisation: each channel's std is the stated one (the sampling error of a 1 Hz
+    process over 2000 s is about 2 %), almost no power above five times each corner frequency,
+    the same for the same key and a prefix of a longer one, another for another flight."""
+    world = fx.World({"turbulence": 1.0, "unsteady_thrust": 1.0})
     d = world.disturbance([0, 3, 1], 2000.0)
-    stated = np.array([8.0e-3, 8.0e-3, 10.0e-3, 2.5e-4, 2.5e-4, 0.4e-4])
+    stated = np.array([*fx.TURBULENCE_FORCE, *fx.TURBULENCE_TORQUE, *[fx.UNSTEADY_THRUST] * 4])
     assert np.allclose(d.std(axis=0), stated, rtol=0.08)
-    spectrum = np.abs(np.fft.rfft(d[:, 3] - d[:, 3].mean())) ** 2
     freq = np.fft.rfftfreq(len(d), 1 / fx.REALISATION_RATE)
-    assert spectrum[freq > 5.0].sum() < 0.01 * spectrum.sum()
+    for channel, band in ((3, fx.TURBULENCE_BAND), (6, fx.UNSTEADY_THRUST_BAND)):
+        spectrum = np.abs(np.fft.rfft(d[:, channel] - d[:, channel].mean())) ** 2
+        assert spectrum[freq > 5 * band].sum() < 0.01 * spectrum.sum()
     short = world.disturbance([0, 3, 1], 10.0)
     assert np.array_equal(short, d[:len(short)])
     other = world.disturbance([0, 3, 2], 10.0)
-    assert np.abs(other - short).max() > 0.5 * stated.max()
-    assert fx.World({"turbulence": 0.5}).disturbance([0, 3, 1], 10.0) == pytest.approx(0.5 * short)
+    assert (np.abs(other - short).max(axis=0) > 0.5 * stated).all()
+    half = fx.World({"turbulence": 0.5}).disturbance([0, 3, 1], 10.0)
+    assert half[:, :6] == pytest.approx(0.5 * short[:, :6]) and not half[:, 6:].any()
 
 
 def test_inertia_offset_is_the_true_body():

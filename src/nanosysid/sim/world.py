@@ -36,23 +36,6 @@ __all__ = ["EFFECTS", "DEPENDS_ON", "World", "Nature", "DEFAULT_WORLD", "ExtraWr
 # fn(t (...,), x (..., 13), omega (..., 4), omega_dot (..., 4)) -> (force_B (..., 3), torque_B (..., 3))
 ExtraWrench = Callable[[Tensor, Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
 
-EFFECTS: dict[str, str] = {
-    "rotor_drag": "blade flapping and induced drag of each rotor from its own air velocity v_i = v_B + w x r_i, at the "
-                  "rotor hub 8 mm above the centre of mass: F_i = -Omega_i K v_i, K = diag(1.8e-6, 1.8e-6, 1.0e-6) kg/rad "
-                  "(the z part: thrust falling with the rotor's axial inflow); torque sum r_i x F_i",
-    "body_drag": "quadratic airframe drag: F_B = -c * |v_B| * v_B per axis, c = (1.5e-3, 1.5e-3, 3.0e-3) kg/m",
-    "telemetry_delay": "the recorded rotor speeds lag the true ones by 30 ms (3 samples)",
-    "com_offset": "centre of mass 1.5 mm forward and 1.0 mm right of the geometric centre: thrust torques roll/pitch",
-    "motor_asymmetry": "per-rotor thrust (and drag-torque) coefficients k_F (1 + d_i), d = (+3.0, -2.0, +2.5, -3.5) %",
-    "rotor_inertia": "rotor inertia J_r = 3.9e-8 kg m^2: yaw reaction -J_r sum s_i dOmega_i/dt and gyroscopic -w x h_rotors",
-    "inertia_offset": "the body's inertia is (+15, +15, +25) % off the nominal diagonal",
-    "turbulence": "band-limited random body force and torque (downwash recirculating in the arena): std (8, 8, 10) mN "
-                  "and (2.5, 2.5, 0.4) 1e-4 N m, low-pass 1 Hz; a new realisation every flight",
-    "unsteady_thrust": "each rotor's thrust and drag torque fluctuate around k Omega^2 (unsteady aerodynamics of the "
-                       "rotor in its own disturbed inflow): factors 1 + e_i(t), e_i of std 4 %, low-pass 10 Hz, "
-                       "independent per rotor; a new realisation every flight",
-}
-
 # What each effect is a function of: only the state-dependent ones can a model of the state learn.
 DEPENDS_ON: dict[str, str] = {
     "rotor_drag": "state, rotor speeds",
@@ -82,15 +65,41 @@ INERTIA_OFFSET = (0.15, 0.15, 0.25)
 # Band-limited disturbance: the paper's unexplained slow roll/pitch torque and the force that the
 # residual networks cannot learn; its size is set so that the physics row matches the paper's
 # (reports/sim/stats.md), a few per cent of the hover thrust and of the rotors' roll/pitch authority
-TURBULENCE_FORCE = (8.0e-3, 8.0e-3, 10.0e-3)  # N, std per body axis
+TURBULENCE_FORCE = (5.0e-3, 5.0e-3, 6.0e-3)  # N, std per body axis
 TURBULENCE_TORQUE = (2.5e-4, 2.5e-4, 0.4e-4)  # N m, std per body axis
 TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass
 # The paper's "unmodelled actuation": the thrust a rotor gives at a measured speed is not a fixed
 # k_F Omega^2; the controller answers the fluctuation with the rotor speeds, so the measured speeds
 # tell less of the torque than the quadratic model says. Its size, like the turbulence's, is set
 # by the physics and Phys+Res rows of the paper (reports/sim/stats.md).
-UNSTEADY_THRUST = 0.04  # std of each rotor's relative thrust and drag-torque fluctuation
+UNSTEADY_THRUST = 0.07  # std of each rotor's relative thrust and drag-torque fluctuation
 UNSTEADY_THRUST_BAND = 10.0  # Hz
+
+def _mm(v) -> str:
+    return ", ".join(f"{x * 1e3:g}" for x in v)
+
+
+EFFECTS: dict[str, str] = {
+    "rotor_drag": f"blade flapping and induced drag of each rotor from its own air velocity v_i = v_B + w x r_i, at the "
+                  f"rotor hub {ROTOR_HUB_HEIGHT * 1e3:g} mm above the centre of mass: F_i = -Omega_i K v_i, "
+                  f"K = diag{ROTOR_DRAG} kg/rad (the z part: thrust falling with the rotor's axial inflow); "
+                  "torque sum r_i x F_i",
+    "body_drag": f"quadratic airframe drag: F_B = -c * |v_B| * v_B per axis, c = {BODY_DRAG} kg/m",
+    "telemetry_delay": f"the recorded rotor speeds lag the true ones by {TELEMETRY_DELAY * 1e3:g} ms",
+    "com_offset": f"centre of mass at ({_mm(COM_OFFSET)}) mm from the geometric centre: thrust torques roll/pitch",
+    "motor_asymmetry": "per-rotor thrust (and drag-torque) coefficients k_F (1 + d_i), "
+                       f"d = ({', '.join(f'{d * 100:+g}' for d in MOTOR_ASYMMETRY)}) %",
+    "rotor_inertia": f"rotor inertia J_r = {ROTOR_INERTIA:g} kg m^2: yaw reaction -J_r sum s_i dOmega_i/dt and "
+                     "gyroscopic -w x h_rotors",
+    "inertia_offset": f"the body's inertia is ({', '.join(f'{d * 100:+g}' for d in INERTIA_OFFSET)}) % off the nominal "
+                      "diagonal",
+    "turbulence": f"band-limited random body force and torque (downwash recirculating in the arena): std "
+                  f"({_mm(TURBULENCE_FORCE)}) mN and ({', '.join(f'{x:g}' for x in TURBULENCE_TORQUE)}) N m, "
+                  f"low-pass {TURBULENCE_BAND:g} Hz; a new realisation every flight",
+    "unsteady_thrust": "each rotor's thrust and drag torque fluctuate around k Omega^2 (unsteady aerodynamics of the "
+                       f"rotor in its own disturbed inflow): factors 1 + e_i(t), e_i of std {UNSTEADY_THRUST:.0%}, "
+                       f"low-pass {UNSTEADY_THRUST_BAND:g} Hz, independent per rotor; a new realisation every flight",
+}
 
 # w @ _GYRO = (-w_y, w_x, 0)
 _GYRO = torch.tensor([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
