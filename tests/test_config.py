@@ -50,7 +50,10 @@ def test_every_model_config_composes_and_predicts(name, tmp_path):
         save_discovered(tmp_path / "model.json", Vehicle(), {"induced_drag": {"coefficients": [1e-6, 1e-6]}}, 0.01)
     flight = synthetic.synthetic_flights(["melon_x_run1"], 60, seed=1)[0]
     y0, u = flight.y[:5], np.stack([flight.u[k:k + 7] for k in range(5)])
-    pred = build_from_options(m)(y0, u)
+    predictor = build_from_options(m)
+    # a timed predictor (the oracle replays each flight's disturbances) is told where the windows start
+    timed = {"t0": flight.t[:5] - flight.t[0], "flight": flight.name} if getattr(predictor, "timed", False) else {}
+    pred = predictor(y0, u, **timed)
     assert pred.shape == (5, 7, 13) and np.isfinite(pred).all()
 
 

@@ -34,6 +34,8 @@ NAMED_BY = {
     "motor_asymmetry": "rotor_spread",
     "rotor_inertia": "rotor_gyro",
 }
+# world effects no library entry describes: nature has more than knowledge
+BEYOND_LIBRARY = {"inertia_offset", "turbulence", "unsteady_thrust"}
 TRUTH = {
     "rotor_drag": (1.8e-6, 1.0e-6),  # K_xy, K_z [kg/rad]
     "body_drag": (1.5e-3, 3.0e-3),  # c_xy, c_z [kg/m]
@@ -59,12 +61,12 @@ def discovered(effects):
 
 
 def test_every_world_effect_has_a_library_entry_of_another_name():
-    assert set(NAMED_BY) == set(sim.EFFECTS)
+    assert set(NAMED_BY) | BEYOND_LIBRARY == set(sim.EFFECTS) and not set(NAMED_BY) & BEYOND_LIBRARY
     assert set(NAMED_BY.values()) <= set(discover.LIBRARY)
     assert not set(sim.EFFECTS) & set(discover.LIBRARY)
 
 
-@pytest.mark.parametrize("effect", list(TRUTH))
+@pytest.mark.parametrize("effect", [e for e in TRUTH if e != "rotor_drag"])
 def test_a_hidden_effect_is_named_fitted_and_closes_the_gap(effect):
     r = discovered([effect])
     assert r.found and r.found[0].name == NAMED_BY[effect], [f.name for f in r.found]
@@ -82,6 +84,20 @@ def test_a_hidden_effect_is_named_fitted_and_closes_the_gap(effect):
             assert closed >= 0.5, (q, r.before.simerr[q], r.after.simerr[q], r.oracle.simerr[q])
             checked += 1
     assert checked >= 1
+
+
+def test_per_rotor_drag_is_named_by_its_force_and_its_moments_stay_unexplained():
+    # the world drags each rotor at its hub with that rotor's own air velocity v + omega x r_i;
+    # the library's induced_drag acts at the centre of mass with the body's: it fits the force
+    # (the sum over the four rotors) but not the moments of hub forces about the centre of mass,
+    # which dominate the rotation error of this world
+    r = discovered(["rotor_drag"])
+    first = r.found[0]
+    assert first.name == "induced_drag"
+    got, truth = np.array(list(first.params.values())), np.array(TRUTH["rotor_drag"])
+    assert np.all(np.abs(got - truth) <= 0.2 * np.abs(truth)), (first.params, truth)
+    assert r.before.simerr["R"] > 5 * r.oracle.simerr["R"]
+    assert r.after.simerr["R"] > 0.5 * r.before.simerr["R"]
 
 
 def test_nothing_hidden_nothing_named():
