@@ -358,10 +358,11 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     for other in ("simulate", "extract", "sync", "filter", "split", "identify", "evaluate@naive", "evaluate@oracle",
                   "train@lstm", "evaluate@lstm"):
         assert f"Running stage '{other}'" not in out
-    # evaluate@physics, its export and MCU run, and the report and recordings that show every model
-    for stage in ("export@physics", "mcu@physics", "report", "visualize"):
+    # evaluate@physics, its export and MCU run, the report, the comparison with the paper and the
+    # recordings that show every model
+    for stage in ("export@physics", "mcu@physics", "report", "compare", "visualize"):
         assert f"Running stage '{stage}'" in out
-    assert out.count("Running stage") == 5, out
+    assert out.count("Running stage") == 6, out
     # back to the earlier value: restored from the run cache, not recomputed
     out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=1")
     assert "Stage 'evaluate@physics' is cached - skipping run" in out
@@ -369,7 +370,7 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
     # a learned model: retrains and re-evaluates that model alone, and comes back from the cache
     out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.network.hidden=48")
     assert "Running stage 'train@lstm'" in out and "Running stage 'evaluate@lstm'" in out
-    assert out.count("Running stage") == 6, out  # its export, MCU run, the report and recordings
+    assert out.count("Running stage") == 7, out  # its export, MCU run, the report, comparison and recordings
     out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.network.hidden=62")
     assert "Stage 'train@lstm' is cached - skipping run" in out and "Running stage" not in out
 

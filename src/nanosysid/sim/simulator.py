@@ -43,10 +43,10 @@ class NoiseConfig:
     """Standard deviations of white measurement noise at the output rate."""
 
     pos: float = 5e-4  # m
-    vel: float = 5e-3  # m/s
+    vel: float = 3e-3  # m/s
     # slowly varying error of the onboard velocity estimate (first-order Gauss-Markov): the
     # benchmark's velocity is an estimate, not the derivative of the mocap position
-    vel_drift: float = 0.06  # m/s
+    vel_drift: float = 0.05  # m/s
     vel_drift_tau: float = 0.5  # s
     att: float = 1e-3  # rad, rotation-vector perturbation
     gyro: float = 0.02  # rad/s
