@@ -46,8 +46,8 @@ class NoiseConfig:
     vel: float = 3e-3  # m/s
     # slowly varying error of the onboard velocity estimate (first-order Gauss-Markov): the
     # benchmark's velocity is an estimate, not the derivative of the mocap position
-    vel_drift: float = 0.05  # m/s
-    vel_drift_tau: float = 0.5  # s
+    vel_drift: float = 0.075  # m/s
+    vel_drift_tau: float = 1.0  # s
     att: float = 1e-3  # rad, rotation-vector perturbation
     gyro: float = 0.02  # rad/s
     accel: float = 0.5  # m/s^2

@@ -72,8 +72,8 @@ TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass
 # k_F Omega^2; the controller answers the fluctuation with the rotor speeds, so the measured speeds
 # tell less of the torque than the quadratic model says. Its size, like the turbulence's, is set
 # by the physics and Phys+Res rows of the paper (reports/sim/stats.md).
-UNSTEADY_THRUST = 0.07  # std of each rotor's relative thrust and drag-torque fluctuation
-UNSTEADY_THRUST_BAND = 10.0  # Hz
+UNSTEADY_THRUST = 0.045  # std of each rotor's relative thrust and drag-torque fluctuation
+UNSTEADY_THRUST_BAND = 3.0  # Hz
 
 def _mm(v) -> str:
     return ", ".join(f"{x * 1e3:g}" for x in v)
@@ -362,7 +362,7 @@ DEFAULT_WORLD: dict[str, float] = {
     "rotor_drag": 1.0,
     "body_drag": 1.0,
     "telemetry_delay": 1.0,
-    "com_offset": 1.0,
+    "com_offset": 0.3,
     "motor_asymmetry": 1.0,
     "rotor_inertia": 1.0,
     "turbulence": 1.0,
