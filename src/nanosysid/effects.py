@@ -16,9 +16,11 @@ the generated C (:func:`wrench`, over the C generator's traced scalars).
 Three kinds of entry:
 
 - ``wrench``: an extra body force and torque, added to the rigid body's equations;
-- ``correction``: a correction of a nominal parameter (mass, inertia, arm). In the regression
-  its columns are the linearised change of the measured wrench (they read the measured
-  specific force and angular acceleration); the augmented model applies it to the vehicle;
+- ``correction``: a correction of a nominal parameter (inertia, arm; k_F and k_M are refitted
+  with every candidate). In the regression its columns are the first-order change of the
+  residual, written with the model's own rotor torques; the augmented model applies it to the
+  vehicle. The mass is no candidate: every force the model predicts is divided by it, and the
+  accelerometer sees only force over mass, which k_F's refit already carries;
 - ``delay``: ``input_delay``, a delay of the recorded rotor speeds, found by search.
 
 Besides the named entries, :func:`entry` builds *generic terms*, ``term:<channel>:<a>*<b>``:
@@ -58,8 +60,6 @@ class Signals:
         w: Body rates (rad/s), 3.
         om: Rotor speeds (rad/s), 4; ``s`` their squares; ``om_dot`` their rates (rad/s^2).
         z: Height (m) above the floor, the position's z.
-        a: Measured specific force in the body frame (m/s^2), 3; ``w_dot`` measured angular
-            acceleration (rad/s^2), 3. Only the regression has them (the corrections' columns).
     """
 
     v: Sequence[Any]
@@ -68,8 +68,6 @@ class Signals:
     s: Sequence[Any]
     om_dot: Sequence[Any]
     z: Any
-    a: Sequence[Any] | None = None
-    w_dot: Sequence[Any] | None = None
 
 
 Columns = Callable[[Signals, Vehicle], list[list[Any]]]
@@ -101,6 +99,11 @@ class Effect:
     signs: tuple[int, ...] = ()
     kind: str = "wrench"
     excited_by: str = ""
+    physical: Callable[[Sequence[float], Vehicle], list[float]] | None = None
+
+    def values(self, theta: Sequence[float], vehicle: Vehicle) -> list[float]:
+        """The coefficients of the columns as the physical parameters :attr:`params` name."""
+        return [float(t) for t in theta] if self.physical is None else self.physical(theta, vehicle)
 
 
 def _zero_rows(P: int) -> list[list[Any]]:
@@ -204,27 +207,25 @@ def _nominal(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     return rows
 
 
-def _mass(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    # the measured force is m_nominal a; the rotors' is m_true a: the residual is -(dm) a
-    rows = _zero_rows(1)
-    for c in range(3):
-        rows[c][0] = -sg.a[c]
-    return rows
-
-
 def _inertia(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    # the measured torque uses the nominal J; the rotors' torque is J_true dw/dt + w x J_true w,
-    # so the residual of J + dJ is -(dJ dw/dt + w x dJ w), one column per axis of dJ
-    w, wd = sg.w, sg.w_dot
+    # the measured torque is J dw/dt + w x Jw with the nominal J; with the true J + dJ the rotors'
+    # torque tau gives dw/dt = (J + dJ)^-1 (tau - w x (J + dJ) w). To first order in dJ the
+    # residual is -dJ_k a_k e_k - w x (dJ_k w_k e_k) per axis k, a = J^-1 (tau - w x Jw) the
+    # angular acceleration the nominal model predicts (never the measured one, which would let
+    # the fit copy the measurement)
+    J = vehicle.inertia
+    kl = vehicle.k_f * vehicle.arm
+    w = sg.w
+    gyro = (w[1] * (J[2] * w[2]) - w[2] * (J[1] * w[1]), w[2] * (J[0] * w[0]) - w[0] * (J[2] * w[2]),
+            w[0] * (J[1] * w[1]) - w[1] * (J[0] * w[0]))
+    tau = (kl * signed_sum(ROTOR_Y, sg.s), kl * signed_sum([-x for x in ROTOR_X], sg.s),
+           vehicle.k_m * signed_sum([-c for c in SPIN], sg.s))
+    a = [(tau[k] - gyro[k]) * (1.0 / J[k]) for k in range(3)]
     rows = _zero_rows(3)
-    for k in range(3):
-        e = [0.0, 0.0, 0.0]
-        e[k] = w[k]
-        cross = [w[1] * e[2] - w[2] * e[1], w[2] * e[0] - w[0] * e[2], w[0] * e[1] - w[1] * e[0]]
-        for c in range(3):
-            term = -cross[c] if not (isinstance(cross[c], float) and cross[c] == 0.0) else 0.0
-            rows[3 + c][k] = term
-        rows[3 + k][k] = -wd[k]
+    # w x (w_k e_k): k = x -> (0, w_z w_x, -w_y w_x); y -> (-w_z w_y, 0, w_x w_y); z -> (w_y w_z, -w_x w_z, 0)
+    rows[3][0], rows[4][0], rows[5][0] = -a[0], -(w[2] * w[0]), w[1] * w[0]
+    rows[3][1], rows[4][1], rows[5][1] = w[2] * w[1], -a[1], -(w[0] * w[1])
+    rows[3][2], rows[4][2], rows[5][2] = -(w[1] * w[2]), w[0] * w[2], -a[2]
     return rows
 
 
@@ -287,11 +288,12 @@ LIBRARY: dict[str, Effect] = {e.name: e for e in (
     Effect("rotor_gyro", "rotor inertia J_r: gyroscopic torque -ω × (0, 0, J_r Σ s_i Ω_i) and yaw reaction "
            "-J_r Σ s_i dΩ_i/dt", ("J_r [kg m²]",), _rotor_gyro, ("R", "w"), (1,),
            excited_by="quick yaw-rate changes and roll/pitch rates during yaw"),
-    Effect("mass", "the mass off its nominal value: m + dm", ("dm [kg]",), _mass, ("p", "v"), (0,), "correction",
-           "horizontal accelerations (vertically only k_F / m is seen)"),
     Effect("inertia", "the body's inertia off its nominal diagonal: J + diag(dJ)",
            ("dJ_x [kg m²]", "dJ_y [kg m²]", "dJ_z [kg m²]"), _inertia, ("R", "w"), (0, 0, 0), "correction",
-           "roll and pitch rates during fast yaw: only the inertia has the gyroscopic w x J w"),
+           "roll and pitch rates during fast yaw: only the inertia has the gyroscopic w x J w",
+           # the acceleration column's coefficient is dJ J / (J + dJ): the true body turns J / (J + dJ)
+           # as fast as the nominal model says
+           lambda th, vh: [float(c * j / (j - c)) for c, j in zip(th, vh.inertia)]),
     Effect("arm", "the rotors' lever arm off its nominal value: L + dL", ("dL [m]",), _arm, ("R", "w"), (0,),
            "correction", "roll/pitch torque without angular acceleration (holding a tilt against a wind)"),
 )}
@@ -362,20 +364,17 @@ def entry(name: str) -> Effect:
         raise KeyError(f"no effect {name!r} in the library; known: {', '.join(LIBRARY)}") from None
 
 
-def signals(x: Tensor, om: Tensor, om_dot: Tensor, *, a: Tensor | None = None, w_dot: Tensor | None = None) -> Signals:
-    """The components of batched state ``(..., 13)``, rotor speeds and rates ``(..., 4)``, and
-    (for the corrections' columns) measured specific force and angular acceleration ``(..., 3)``."""
+def signals(x: Tensor, om: Tensor, om_dot: Tensor) -> Signals:
+    """The components of batched state ``(..., 13)``, rotor speeds and rates ``(..., 4)``."""
     v_b = so3.quat_rotate(so3.quat_conj(x[..., 6:10]), x[..., 3:6])
     return Signals(v=v_b.unbind(-1), w=x[..., 10:13].unbind(-1), om=om.unbind(-1), s=(om * om).unbind(-1),
-                   om_dot=om_dot.unbind(-1), z=x[..., 2],
-                   a=None if a is None else a.unbind(-1), w_dot=None if w_dot is None else w_dot.unbind(-1))
+                   om_dot=om_dot.unbind(-1), z=x[..., 2])
 
 
-def features(names: Sequence[str], x: Tensor, om: Tensor, om_dot: Tensor, vehicle: Vehicle, *,
-             a: Tensor | None = None, w_dot: Tensor | None = None) -> Tensor:
+def features(names: Sequence[str], x: Tensor, om: Tensor, om_dot: Tensor, vehicle: Vehicle) -> Tensor:
     """The columns of the named effects side by side, ``(..., 6, sum P)``: the regression's
     features, and with coefficients ``theta`` the augmented model's wrench ``features @ theta``."""
-    sg = signals(x, om, om_dot, a=a, w_dot=w_dot)
+    sg = signals(x, om, om_dot)
     zero = torch.zeros(x.shape[:-1], dtype=x.dtype, device=x.device)
     rows: list[list[Tensor]] = [[] for _ in range(6)]
     for name in names:
@@ -399,12 +398,10 @@ def wrench(name: str, theta: Sequence[float], sg: Signals, vehicle: Vehicle) -> 
 
 
 def apply_corrections(vehicle: Vehicle, corrections: dict[str, Sequence[float]]) -> Vehicle:
-    """The vehicle with the named parameter corrections (``mass``, ``inertia``, ``arm``) added."""
+    """The vehicle with the named parameter corrections (``inertia``, ``arm``) added."""
     kw: dict[str, Any] = {}
     for name, theta in corrections.items():
-        if name == "mass":
-            kw["mass"] = vehicle.mass + float(theta[0])
-        elif name == "inertia":
+        if name == "inertia":
             kw["inertia"] = tuple(j + float(d) for j, d in zip(vehicle.inertia, theta))
         elif name == "arm":
             kw["arm"] = vehicle.arm + float(theta[0])

@@ -25,10 +25,13 @@ estimated from the measurements), cut into blocks of ``block`` seconds and dealt
 every score is held out (:mod:`nanosysid.discover.fit`). Forward selection: each round, every
 candidate not yet chosen is added to the chosen ones, and its held-out gain is measured block by
 block. Under the null hypothesis that it explains nothing, a block's gain is as likely negative as
-positive; the sign-flip statistic ``z = Σ g_b / sqrt(Σ g_b²)`` gives a one-sided p-value, multiplied
-by the number of candidates tried in the round (Bonferroni). A candidate is *eligible* when that
-p-value is below ``alpha`` and no coefficient with a physical sign (a drag coefficient, an inertia)
-comes out negative by more than two standard errors. The eligible candidate with the largest gain is
+positive: the one-sided Wilcoxon signed-rank test over the blocks (a sign-flip test on ranks, so a
+few violent blocks neither make nor break it) gives a p-value, multiplied by the number of
+candidates tried in the round (Bonferroni). A candidate is *eligible* when that p-value is below
+``alpha``, its size (the root of its held-out gain per sample, in noise floors) is at least
+``floor`` (smaller than a quarter of the noise, an effect moves no benchmark figure), and no
+coefficient with a physical sign (a drag coefficient, a rotor inertia) comes out negative by more
+than two standard errors. The eligible candidate with the largest gain is
 chosen. Candidates it is not significantly better than (the same paired sign-flip test on the
 difference of their held-out errors, at ``alpha``) are its *alternatives*: if none of them is chosen
 later, the finding is **ambiguous**, otherwise **named**. The delay of the recorded rotor speeds
@@ -47,11 +50,12 @@ finding.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.stats import norm
+from scipy.stats import norm, wilcoxon
 
 from nanosysid import benchmark
 from nanosysid.dataio import Flight
@@ -59,7 +63,8 @@ from nanosysid.discover import generic
 from nanosysid.discover.fit import COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench, noise_floor
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, apply_corrections, entry, split_coefficients
-from nanosysid.errors import DataError
+from nanosysid.errors import DataError, PredictionError
+from nanosysid.metrics import QUANTITIES
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["run", "Finding", "DiscoveryResult", "LIBRARY", "CHANNELS", "VERDICTS"]
@@ -118,6 +123,7 @@ class DiscoveryResult:
     vehicle: Vehicle
     rounds: list[list[dict[str, Any]]]
     alpha: float
+    floor: float
     noise: np.ndarray
     oracle: benchmark.Scores | None = None
     sindy: dict[str, Any] | None = None
@@ -139,10 +145,13 @@ class DiscoveryResult:
 
 
 def _pvalue(g: np.ndarray) -> tuple[float, float]:
-    """One-sided sign-flip test that the per-block gains ``g`` are positive: ``z`` and p."""
-    s = float(np.sqrt((g ** 2).sum()))
-    z = float(g.sum() / s) if s > 0 else 0.0
-    return z, float(norm.sf(z))
+    """One-sided Wilcoxon signed-rank test that the per-block gains ``g`` lean positive: the
+    equivalent normal ``z`` and p."""
+    g = g[g != 0]
+    if len(g) < 2:
+        return 0.0, 1.0
+    p = float(wilcoxon(g, alternative="greater").pvalue)
+    return float(norm.isf(p)), p
 
 
 def _jackknife(thetas: np.ndarray) -> np.ndarray:
@@ -159,22 +168,24 @@ class _Search:
         self.measured = [measured_wrench(f, vehicle, window, order) for f in self.flights]
         self.noise = noise_floor(self.flights, vehicle, window, order)
         self.weights = 1.0 / np.maximum(self.noise, 1e-12)
+        self._data: dict[float, list[FlightData]] = {}
+        self._grams: dict[float, Grams] = {}
+        self._terms: dict[float, tuple[generic.TermLibrary, np.ndarray]] = {}
         dt = float(np.median(np.diff(self.flights[0].t)))
         self.blocks = block_ids(self.data(0.0), max(1, int(round(block / dt))))
-        self.folds = folds
+        n_blocks = int(self.blocks.max()) + 1
+        if n_blocks < 4:
+            raise DataError(f"discover: the training flights make {n_blocks} blocks of {block:g} s; at least 4 are "
+                            "needed to hold some out (give longer flights or a shorter discover.block)")
+        self.folds = min(folds, n_blocks // 2)  # short data: fewer, larger folds
         self.offsets = {}
         k = 0
         for name in COLUMN_ENTRIES:
             P = len(entry(name).params)
             self.offsets[name] = np.arange(k, k + P)
             k += P
-        self._data: dict[float, list[FlightData]]
-        self._grams: dict[float, Grams] = {}
-        self._terms: dict[float, tuple[generic.TermLibrary, np.ndarray]] = {}
 
     def data(self, delay: float) -> list[FlightData]:
-        if not hasattr(self, "_data"):
-            self._data = {}
         key = round(float(delay), 6)
         if key not in self._data:
             self._data[key] = [flight_data(f, self.vehicle, key, window=self.window, order=self.order, measured=m)
@@ -199,6 +210,13 @@ class _Search:
             self._terms[key] = (lib, lib(signals))
         return self._terms[key]
 
+    def touched(self, name: str) -> set[int]:
+        """The channels an entry's columns act on."""
+        if name == DELAY.name:
+            return set(range(6))
+        f = self.data(0.0)[0].features[name]
+        return set(np.flatnonzero(np.any(f != 0, axis=(0, 2))).tolist())
+
     def cols(self, names: Sequence[str]) -> np.ndarray:
         return np.concatenate([self.offsets[n] for n in [NOMINAL.name, *names]])
 
@@ -216,7 +234,7 @@ class _Search:
         """Held-out SSE per block with the delay chosen on the other folds, and each fold's delay."""
         cols = self.cols(names)
         fits = {d: self.grams(d) for d in delays}
-        out, chosen = np.zeros(len(self.blocks_index)), np.zeros(self.folds)
+        out, chosen = np.zeros(int(self.blocks.max()) + 1), np.zeros(self.folds)
         for k in range(self.folds):
             train = np.flatnonzero(fits[delays[0]].fold != k)
             test = np.flatnonzero(fits[delays[0]].fold == k)
@@ -230,10 +248,6 @@ class _Search:
             out[test] = fits[best].sse(cols, best_theta, test)
         return out, chosen
 
-    @property
-    def blocks_index(self) -> np.ndarray:
-        return np.arange(int(self.blocks.max()) + 1)
-
 
 def _channels_of(search: _Search, name: str, theta: np.ndarray, delay: float) -> tuple[str, ...]:
     """Channels where an entry's fitted wrench carries at least a fifth of its largest (in noise units)."""
@@ -246,7 +260,7 @@ def _channels_of(search: _Search, name: str, theta: np.ndarray, delay: float) ->
 
 
 def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehicle: Vehicle | None = None,
-        alpha: float = 0.01, share: float = 0.5, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005),
+        alpha: float = 0.01, floor: float = 0.25, share: float = 0.5, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005),
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
         oracle: Any = None, analysis: bool = True, sindy: bool = False, batch_size: int = 8192) -> DiscoveryResult:
     """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
@@ -258,6 +272,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             ``params.json``, :func:`nanosysid.identify.load_params`); None: the paper's vehicle
             with k_F and k_M identified on ``train_flights``.
         alpha: Family-wise error rate of each test (see the module's docstring).
+        floor: Size a finding needs, in noise floors: the root of its held-out gain per sample.
         share: Share of the generic fit's held-out gain a chosen entry must reach to be kept.
         delays: Delays (s) searched for ``input_delay`` (0 is always tried).
         window, order: Savitzky-Golay window and order of the derivatives and smoothing.
@@ -276,11 +291,9 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)
         v = dataclasses.replace(Vehicle(), k_f=thrust.coef, k_m=yaw.coef)
     search = _Search(train_flights, v, window, order, block, folds)
-    if search.blocks.max() + 1 < 2 * folds:
-        raise DataError(f"discover: the training flights make {search.blocks.max() + 1} blocks of {block:g} s, "
-                        f"fewer than 2 per fold ({folds} folds); give longer flights or fewer folds")
     delays = tuple(float(d) for d in delays)
     total = float(search.grams(0.0).et.sum())
+    n_samples = len(search.blocks)
 
     chosen: list[str] = []
     delay = 0.0
@@ -303,9 +316,10 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         for name, o in options.items():
             gains = current - o["sse"]
             z, p = _pvalue(gains)
-            o.update(gains=gains, z=z, p=min(1.0, p * K), sign_ok=_signs_ok(name, o["thetas"], search, chosen))
-            o["eligible"] = o["p"] <= alpha and gains.sum() > 0 and o["sign_ok"]
-            table.append({"candidate": name, "heldout_gain": float(gains.sum() / total), "z": z, "p": o["p"],
+            size = float(np.sqrt(max(gains.sum(), 0.0) / n_samples))
+            o.update(gains=gains, z=z, p=min(1.0, p * K), size=size, sign_ok=_signs_ok(name, o["thetas"], search, chosen))
+            o["eligible"] = o["p"] <= alpha and size >= floor and o["sign_ok"]
+            table.append({"candidate": name, "heldout_gain": float(gains.sum() / total), "size": size, "z": z, "p": o["p"],
                           "blocks_improved": int((gains > 0).sum()), "blocks": int(len(gains)),
                           "physical_signs": bool(o["sign_ok"]), "eligible": bool(o["eligible"])})
         table.sort(key=lambda r: -r["heldout_gain"])
@@ -314,10 +328,14 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         if not eligible:
             break
         best = max(eligible, key=lambda n: options[n]["gains"].sum())
-        alts = [n for n in eligible if n != best and _pvalue(options[n]["sse"] - options[best]["sse"])[1] > alpha]
+        # the alternatives: eligible entries acting on the same channels that do not explain
+        # significantly less (the delay acts on every channel, through the rotor speeds)
+        mine = search.touched(best)
+        alts = [n for n in eligible if n != best and search.touched(n) & mine
+                and _pvalue(options[n]["sse"] - options[best]["sse"])[1] > alpha]
         o = options[best]
         picks.append({"name": best, "round": len(rounds), "alternatives": alts, "heldout_gain": float(o["gains"].sum() / total),
-                      "z": o["z"], "p": o["p"], "blocks_improved": int((o["gains"] > 0).sum()),
+                      "size": o["size"], "z": o["z"], "p": o["p"], "blocks_improved": int((o["gains"] > 0).sum()),
                       "blocks": int(len(o["gains"])),
                       "competitors": [n for n, x in options.items() if n != best and x["gains"].sum() > 0]})
         if best == DELAY.name:
@@ -361,11 +379,14 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             stderr = {DELAY.params[0]: _delay_stderr(search, chosen, (0.0,) + delays)}
             channels = CHANNELS
         else:
-            params = dict(zip(c.params, coef[name]))
-            stderr = dict(zip(c.params, errs[name]))
-            channels = _channels_of(search, name, np.array(coef[name]), delay)
+            th, e = np.array(coef[name]), np.array(errs[name])
+            params = dict(zip(c.params, c.values(th, v)))
+            # the interval's ends through the same (monotonic) map; the error as half its width
+            lo, hi = c.values(th - 1.96 * e, v), c.values(th + 1.96 * e, v)
+            stderr = {k: abs(b - a) / (2 * 1.96) for k, a, b in zip(c.params, lo, hi)}
+            channels = _channels_of(search, name, th, delay)
         alts = [a for a in pk["alternatives"] if a not in named_later]
-        ev = {k: pk[k] for k in ("round", "heldout_gain", "z", "p", "blocks_improved", "blocks")}
+        ev = {k: pk[k] for k in ("round", "heldout_gain", "size", "z", "p", "blocks_improved", "blocks")}
         ev["stderr"] = stderr
         ev["ci"] = {k: (params[k] - 1.96 * stderr[k], params[k] + 1.96 * stderr[k]) for k in params}
         ev["stability"] = _stability(search, chosen, name, pk["competitors"], delay)
@@ -387,7 +408,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     for c in range(6):
         z, p = _pvalue(gains[:, c])
         p = min(1.0, 6 * p)
-        if p > alpha or gains[:, c].sum() <= 0:
+        size = float(np.sqrt(max(gains[:, c].sum(), 0.0) / n_samples))
+        if p > alpha or size < floor:
             continue
         coef_c = generic.sparse_fit(terms, resid[:, [c]])
         raw, shown = generic.terms_of(coef_c, lib, [c], search.weights)
@@ -396,12 +418,12 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         extra_terms.update(raw)
         generic_fits.append((c, coef_c[0] / search.weights[c]))
         findings.append(Finding("unnamed", None, (CHANNELS[c],), shown, {
-            "heldout_gain": float(gains[:, c].sum() / total), "z": z, "p": p,
+            "heldout_gain": float(gains[:, c].sum() / total), "size": size, "z": z, "p": p,
             "blocks_improved": int((gains[:, c] > 0).sum()), "blocks": int(len(gains))}))
     findings.sort(key=lambda f: -f.evidence["heldout_gain"])
 
     dk_f, dk_m = coef[NOMINAL.name]
-    corrections = {n: coef[n] for n in chosen if LIBRARY[n].kind == "correction"}
+    corrections = {n: LIBRARY[n].values(coef[n], v) for n in chosen if LIBRARY[n].kind == "correction"}
     augmented_vehicle = apply_corrections(dataclasses.replace(v, k_f=v.k_f + dk_f, k_m=v.k_m + dk_m), corrections)
     wrench = [n for n in chosen if LIBRARY[n].kind == "wrench"] + list(extra_terms)
     values = [x for n in chosen if LIBRARY[n].kind == "wrench" for x in coef[n]] + list(extra_terms.values())
@@ -410,8 +432,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     before = benchmark.evaluate(nominal, test_flights, horizon=horizon, batch_size=batch_size)
     after = benchmark.evaluate(model, test_flights, horizon=horizon, batch_size=batch_size)
     ref = benchmark.evaluate(oracle, test_flights, horizon=horizon, batch_size=batch_size) if oracle else None
-    result = DiscoveryResult(findings, before, after, model, nominal, augmented_vehicle, rounds, alpha, search.noise,
-                             ref)
+    result = DiscoveryResult(findings, before, after, model, nominal, augmented_vehicle, rounds, alpha, floor,
+                             search.noise, ref)
     if sindy:
         result.sindy = _sindy_baseline(search, v, test_flights, horizon, batch_size)
     if analysis:
@@ -501,5 +523,9 @@ def _sindy_baseline(search: _Search, vehicle: Vehicle, test_flights, horizon, ba
     step = AugmentedStep(dataclasses.replace(vehicle, k_f=vehicle.k_f + dk_f, k_m=vehicle.k_m + dk_m), list(kept),
                          list(kept.values()))
     model = AugmentedPredictor(step, name="sindy")
-    scores = benchmark.evaluate(model, test_flights, horizon=horizon, batch_size=batch_size)
-    return {"terms": shown, "simerr": scores.simerr, "scores": scores, "model": model}
+    try:
+        scores = benchmark.evaluate(model, test_flights, horizon=horizon, batch_size=batch_size)
+    except PredictionError:  # its rollouts diverge: the plain fit's own failure, recorded as such
+        return {"terms": shown, "simerr": {q: math.inf for q in QUANTITIES}, "scores": None, "model": model,
+                "diverged": True}
+    return {"terms": shown, "simerr": scores.simerr, "scores": scores, "model": model, "diverged": False}

@@ -96,7 +96,7 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
         bands[label] = [[float(psd[(freq >= lo) & (freq < hi), c].sum() * df) for c in range(6)] for lo, hi in BANDS]
     out["bands"] = {"edges": [list(bd) for bd in BANDS], **bands}
     out["samples"] = {"train": int(len(b)), "test": int(sum(len(d.r) for d in test))}
-    out["scatter"] = _scatter(result, train, names, theta, generic_fits, lib)
+    out["scatter"] = _scatter(result, train, names, theta, generic_fits, lib, var, 1 / dt)
     return out
 
 
@@ -121,9 +121,29 @@ def _rollout_shares(result, search, flights, horizon, batch_size) -> dict[str, A
     return {"nominal": result.before.simerr, "with_measured_channel": rows}
 
 
-def _scatter(result, train, names, theta, generic_fits, lib, n_max: int = 4000) -> dict[str, Any]:
+def _where(x: np.ndarray, var: dict[str, np.ndarray], fs: float) -> tuple[str, str]:
+    """The flight regime (the quartile of one regime variable) and the frequency band where a
+    signal ``x (N,)`` is largest."""
+    best, label = 0.0, ""
+    for k, v in var.items():
+        edges = np.quantile(v, [0, 0.25, 0.5, 0.75, 1.0])
+        idx = np.clip(np.searchsorted(edges, v, side="right") - 1, 0, 3)
+        rms = np.array([np.sqrt((x[idx == i] ** 2).mean()) for i in range(4)])
+        contrast = rms.max() / max(rms.min(), 1e-30)
+        if contrast > best:
+            i = int(rms.argmax())
+            best, label = contrast, f"{k} {edges[i]:.3g} – {edges[i + 1]:.3g} ({contrast:.1f}x the quietest quartile)"
+    freq, psd = welch(x, fs=fs, nperseg=256)
+    power = [psd[(freq >= lo) & (freq < hi)].sum() for lo, hi in BANDS]
+    b = int(np.argmax(power))
+    band = f"{BANDS[b][0]:g}–{BANDS[b][1]:g} Hz ({100 * power[b] / max(sum(power), 1e-300):.0f} % of its power)"
+    return label, band
+
+
+def _scatter(result, train, names, theta, generic_fits, lib, var, fs, n_max: int = 4000) -> dict[str, Any]:
     """For each finding, in the channel it acts on most: its fitted contribution, the residual
-    with everything else fitted removed, and what is left after all of it (N or N m)."""
+    with everything else fitted removed, and what is left after all of it (N or N m); and the
+    regime and band where the contribution is largest (into the finding's evidence)."""
     offs, k = {}, 0
     for nm in names:
         P = train[0].features[nm].shape[-1]
@@ -147,6 +167,7 @@ def _scatter(result, train, names, theta, generic_fits, lib, n_max: int = 4000) 
             continue
         ch = int(np.argmax(contrib.std(axis=0) / np.asarray(result.noise)))
         label = f.entry or f"unnamed ({', '.join(f.channels)})"
+        f.evidence["regime"], f.evidence["band"] = _where(contrib[:, ch], var, fs)
         out[label] = {"verdict": f.verdict, "channel": CHANNELS[ch], "noise": float(result.noise[ch]),
                       "model": contrib[::step, ch].tolist(), "residual_after": (R - total)[::step, ch].tolist(),
                       "residual_others_removed": (R - total + contrib)[::step, ch].tolist()}

@@ -113,10 +113,8 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
     om_dot = savgol_filter(u, window, order, deriv=1, delta=dt, axis=0)
     meas = measured_wrench(flight, vehicle, window, order) if measured is None else measured
     r = meas - _smooth(nominal_wrench(u, vehicle), window, order)
-    acc = np.column_stack([flight.extra[c] for c in ("ax_body", "ay_body", "az_body")])
-    w_dot = savgol_filter(flight.y[:, 10:13], window, order, deriv=1, delta=dt, axis=0)
-    x, om, od, a, wd = (torch.from_numpy(np.ascontiguousarray(v)) for v in (flight.y, u, om_dot, acc, w_dot))
-    feats = {name: _smooth(effects.features([name], x, om, od, vehicle, a=a, w_dot=wd).numpy(), window, order)[EDGE:-EDGE]
+    x, om, od = (torch.from_numpy(np.ascontiguousarray(v)) for v in (flight.y, u, om_dot))
+    feats = {name: _smooth(effects.features([name], x, om, od, vehicle).numpy(), window, order)[EDGE:-EDGE]
              for name in COLUMN_ENTRIES}
     sg = effects.signals(x, om, od)
     terms = np.column_stack([torch.as_tensor(fn(sg, vehicle)).numpy() * np.ones(len(flight))

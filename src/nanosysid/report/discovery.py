@@ -17,7 +17,7 @@ from nanosysid.report.tables import results_table_md
 from nanosysid.viz.benchmark import mae_horizon_figure
 from nanosysid.viz.discovery import channel_figure, finding_figure
 
-__all__ = ["write_report", "result_dict", "gap_closed"]
+__all__ = ["write_report", "result_dict", "gap_closed", "verdicts_markdown"]
 
 _QLABEL = {"p": "position", "v": "velocity", "R": "orientation", "w": "angular velocity"}
 
@@ -42,9 +42,11 @@ def _finding_dict(f) -> dict[str, Any]:
 def result_dict(result: DiscoveryResult) -> dict[str, Any]:
     """JSON-ready summary (the figures' sample data left out)."""
     return {
+        "format": "nanosysid-discovery-1",
         "model": result.name,
         "findings": [_finding_dict(f) for f in result.findings],
         "alpha": result.alpha,
+        "floor": result.floor,
         "noise_floor": dict(zip(CHANNELS, (float(x) for x in result.noise))),
         "rounds": result.rounds,
         "vehicle": dataclasses.asdict(result.vehicle),
@@ -67,7 +69,8 @@ def _unit(channel: str) -> tuple[float, str]:
 
 def _verdict_line(f) -> str:
     ev = f.evidence
-    stats = (f"held-out gain {100 * ev['heldout_gain']:.2f} % of the nominal residual, z = {ev['z']:.1f}, "
+    stats = (f"held-out gain {100 * ev['heldout_gain']:.2f} % of the nominal residual, size {ev['size']:.2f} noise "
+             f"floors, z = {ev['z']:.1f}, "
              f"p = {ev['p']:.2g}, {ev['blocks_improved']} / {ev['blocks']} blocks improved")
     if f.verdict == "named":
         return f"**`{f.name}` named** on {', '.join(f.channels)} ({stats}; chosen in {100 * ev['stability']:.0f} % of the folds' refits)."
@@ -77,17 +80,34 @@ def _verdict_line(f) -> str:
         return (f"**Ambiguous** on {', '.join(f.channels)}: {alts} explain it equally well ({stats}). The augmented "
                 f"model uses `{ev['used']}`, the one with the lowest held-out residual. Flights that would tell them "
                 f"apart: {how}.")
+    where = (f" It is largest at {ev['regime']}, in the band {ev['band']}." if "regime" in ev else "")
     return (f"**Unnamed** disagreement on {', '.join(f.channels)} ({stats}): no library entry explains it; a sparse fit "
-            f"of generic terms captures it, and the augmented model adds those terms.")
+            f"of generic terms captures it, and the augmented model adds those terms.{where}")
+
+
+def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
+    """Discovery's verdicts (``result.json``'s ``findings``) as a short markdown list."""
+    if not findings:
+        return "**Discovery**: no disagreement stands above the noise floor."
+    lines = ["**Discovery's verdicts**", ""]
+    for f in findings:
+        where = ", ".join(f["channels"])
+        if f["verdict"] == "named":
+            lines.append(f"- `{f['name']}` named ({where})")
+        elif f["verdict"] == "ambiguous":
+            lines.append(f"- ambiguous ({where}): " + " or ".join(f"`{a}`" for a in f["alternatives"]))
+        else:
+            lines.append(f"- unnamed ({where}): " + " + ".join(f["params"]))
+    return "\n".join(lines)
 
 
 def write_report(result: DiscoveryResult, out: Path) -> None:
-    """``report.md``, ``result.json`` and ``figures/`` in ``out``."""
+    """``report.md``, ``result.json``, ``verdicts.md`` (for the rerun recordings) and ``figures/`` in ``out``."""
     out = Path(out)
     a = result.analysis
     figs = out / "figures"
     rows = {"nominal (physics_full)": result.before, f"discovered ({result.name})": result.after}
-    if result.sindy is not None:
+    if result.sindy is not None and result.sindy["scores"] is not None:
         rows["plain SINDy (generic terms, no names)"] = result.sindy["scores"]
     if result.oracle is not None:
         rows["oracle"] = result.oracle
@@ -143,7 +163,8 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
                   "left); grey: ± the channel's noise floor.*", ""]
     if result.sindy is not None:
         L += [f"**Plain SINDy** (the same generic terms on the nominal residual, no names) keeps "
-              f"{len(result.sindy['terms'])} terms.", ""]
+              f"{len(result.sindy['terms'])} terms" + ("; its rollouts diverge on the test flights." if result.sindy["diverged"]
+                                                      else ".") , ""]
 
     if a:
         L += ["## Where the nominal model and the measurements disagree", "",
@@ -197,9 +218,10 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
           "each block's residual is measured with a fit on the other folds; channels are weighted by their noise "
           "floor. Forward selection over the library: each round, every candidate not yet chosen is added to the "
           "chosen ones. Under the hypothesis that a candidate explains nothing, its held-out gain on a block is as "
-          "likely negative as positive; the sign-flip statistic `z = Σ g / sqrt(Σ g²)` over the blocks gives a "
-          f"p-value, multiplied by the number of candidates tried in the round (Bonferroni), which must be below "
-          f"α = {result.alpha:g}. Coefficients with a physical sign (drag, rotor inertia) must not come out negative. "
+          "likely negative as positive; the one-sided Wilcoxon signed-rank test over the blocks gives a p-value, "
+          f"multiplied by the number of candidates tried in the round (Bonferroni), which must be below "
+          f"α = {result.alpha:g}; its size (the root of its held-out gain per sample, in noise floors) must be at "
+          f"least {result.floor:g}. Coefficients with a physical sign (drag, rotor inertia) must not come out negative. "
           "Candidates the chosen one is not significantly better than (the same test on the difference of their "
           "held-out errors) make the finding ambiguous. A chosen entry must also explain at least half of what a "
           "generic sparse fit (pysindy's STLSQ over products of body velocity, rates, thrust and height) captures "
@@ -207,16 +229,19 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
           "unnamed finding where it captures significantly more than nothing. The rotor-speed delay is searched "
           "inside each fold.", ""]
     for i, table in enumerate(result.rounds, 1):
-        L += [f"Round {i}:", "", "| candidate | held-out gain | z | p (adjusted) | blocks improved | physical signs | eligible |",
-              "|---|---|---|---|---|---|---|"]
+        L += [f"Round {i}:", "", "| candidate | held-out gain | size [noise floors] | z | p (adjusted) | blocks improved | "
+              "physical signs | eligible |", "|---|---|---|---|---|---|---|---|"]
         for r in table:
-            L.append(f"| {r['candidate']} | {100 * r['heldout_gain']:.3f} % | {r['z']:.1f} | {r['p']:.2g} | "
+            L.append(f"| {r['candidate']} | {100 * r['heldout_gain']:.3f} % | {r['size']:.2f} | {r['z']:.1f} | {r['p']:.2g} | "
                      f"{r['blocks_improved']} / {r['blocks']} | {'yes' if r['physical_signs'] else 'no'} | "
                      f"{'yes' if r['eligible'] else 'no'} |")
         L.append("")
     L += ["## Benchmark table", "", results_table_md(rows), ""]
     with atomic_file(out / "report.md") as tmp:
         tmp.write_text("\n".join(L))
+    summary = result_dict(result)
     with atomic_file(out / "result.json") as tmp:
-        tmp.write_text(json.dumps(result_dict(result), indent=1) + "\n")
+        tmp.write_text(json.dumps(summary, indent=1) + "\n")
+    with atomic_file(out / "verdicts.md") as tmp:
+        tmp.write_text(verdicts_markdown(summary["findings"]) + "\n")
 
