@@ -45,7 +45,7 @@ from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, signed_sum
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["CHANNELS", "Signals", "Effect", "LIBRARY", "NOMINAL", "DELAY", "TERM_SIGNALS", "signals", "features",
-           "wrench", "split_coefficients", "entry", "term_name", "generic_terms", "apply_corrections"]
+           "wrench", "split_coefficients", "entry", "term_name", "generic_terms", "apply_corrections", "refitted_vehicle"]
 
 CHANNELS = ("F_x", "F_y", "F_z", "tau_x", "tau_y", "tau_z")
 
@@ -100,6 +100,16 @@ class Effect:
     kind: str = "wrench"
     excited_by: str = ""
     physical: Callable[[Sequence[float], Vehicle], list[float]] | None = None
+    # the largest share of the nominal value a correction (or a relative coefficient) may have;
+    # beyond it the fit is not correcting a parameter but soaking up something else (a
+    # disturbance the controller fights correlates with every column proportional to the rotor
+    # torque)
+    bound: float | None = None
+
+    def nominal(self, vehicle: Vehicle) -> list[float]:
+        """The values :attr:`bound` is a share of: a correction's nominal values, 1 for a
+        relative coefficient."""
+        return {"inertia": list(vehicle.inertia), "arm": [vehicle.arm]}.get(self.name, [1.0] * len(self.params))
 
     def values(self, theta: Sequence[float], vehicle: Vehicle) -> list[float]:
         """The coefficients of the columns as the physical parameters :attr:`params` name."""
@@ -197,12 +207,11 @@ def _rotor_gyro(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
 
 
 def _nominal(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    """Corrections of the nominal coefficients: k_F (thrust and roll/pitch torque) and k_M."""
-    L = vehicle.arm
+    """Corrections of the nominal coefficients: k_F on the thrust and k_M on the yaw torque. The
+    roll/pitch torques' scale k_F L is the ``arm`` correction's: refitted with the thrust, a
+    disturbance torque the controller fights would bend k_F away from what the thrust says."""
     rows = _zero_rows(2)
     rows[2][0] = _sum(sg.s)
-    rows[3][0] = L * signed_sum(ROTOR_Y, sg.s)
-    rows[4][0] = L * signed_sum([-x for x in ROTOR_X], sg.s)
     rows[5][1] = signed_sum([-s for s in SPIN], sg.s)
     return rows
 
@@ -236,7 +245,7 @@ def _arm(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     return rows
 
 
-NOMINAL = Effect("nominal", "the quadratic rotor model's own coefficients, refitted alongside",
+NOMINAL = Effect("nominal", "the quadratic rotor model's thrust and yaw coefficients, refitted alongside",
                  ("dk_F [N s²/rad²]", "dk_M [N m s²/rad²]"), _nominal, ("p", "v", "R", "w"), (0, 0))
 
 DELAY = Effect("input_delay", "the recorded rotor speeds lag the true ones by a delay (telemetry over a radio link)",
@@ -284,7 +293,7 @@ LIBRARY: dict[str, Effect] = {e.name: e for e in (
            excited_by="throttle steps at level attitude: the torque follows the collective thrust"),
     Effect("rotor_spread", "rotors of unequal coefficients k_F (1 + d_i), k_M (1 + d_i) (manufacturing spread, wear)",
            ("d_1 [-]", "d_2 [-]", "d_3 [-]", "d_4 [-]"), _rotor_spread, ("p", "v", "R", "w"), (0, 0, 0, 0),
-           excited_by="yaw manoeuvres, which spin the two rotor pairs at different speeds"),
+           excited_by="yaw manoeuvres, which spin the two rotor pairs at different speeds", bound=0.25),
     Effect("rotor_gyro", "rotor inertia J_r: gyroscopic torque -ω × (0, 0, J_r Σ s_i Ω_i) and yaw reaction "
            "-J_r Σ s_i dΩ_i/dt", ("J_r [kg m²]",), _rotor_gyro, ("R", "w"), (1,),
            excited_by="quick yaw-rate changes and roll/pitch rates during yaw"),
@@ -293,9 +302,9 @@ LIBRARY: dict[str, Effect] = {e.name: e for e in (
            "roll and pitch rates during fast yaw: only the inertia has the gyroscopic w x J w",
            # the acceleration column's coefficient is dJ J / (J + dJ): the true body turns J / (J + dJ)
            # as fast as the nominal model says
-           lambda th, vh: [float(c * j / (j - c)) for c, j in zip(th, vh.inertia)]),
+           lambda th, vh: [float(c * j / (j - c)) for c, j in zip(th, vh.inertia)], 0.5),
     Effect("arm", "the rotors' lever arm off its nominal value: L + dL", ("dL [m]",), _arm, ("R", "w"), (0,),
-           "correction", "roll/pitch torque without angular acceleration (holding a tilt against a wind)"),
+           "correction", "roll/pitch torque without angular acceleration (holding a tilt against a wind)", None, 0.5),
 )}
 
 # Physically meaningful signals of the generic terms: name -> (unit, extractor). The rotor-speed
@@ -395,6 +404,14 @@ def wrench(name: str, theta: Sequence[float], sg: Signals, vehicle: Vehicle) -> 
             total = col * float(th) if isinstance(total, float) and total == 0.0 else total + col * float(th)
         out.append(total)
     return out[:3], out[3:]
+
+
+def refitted_vehicle(vehicle: Vehicle, dk_f: float, dk_m: float, corrections: dict[str, Sequence[float]]) -> Vehicle:
+    """The vehicle with the refitted k_F (thrust) and k_M and the corrections applied; the arm is
+    scaled so that the roll/pitch torques' k_F L is what the ``arm`` correction (if any) says."""
+    v = apply_corrections(vehicle, corrections)
+    k_f = vehicle.k_f + dk_f
+    return dataclasses.replace(v, k_f=k_f, k_m=vehicle.k_m + dk_m, arm=v.arm * vehicle.k_f / k_f)
 
 
 def apply_corrections(vehicle: Vehicle, corrections: dict[str, Sequence[float]]) -> Vehicle:

@@ -17,9 +17,9 @@ Example::
 from __future__ import annotations
 
 import math
-import os
+import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -210,7 +210,8 @@ def check(worlds: Sequence[World], *, workers: int = 1, cfg=None, horizon: int =
 
     rows: list[dict[str, Any]] = []
     bar = tqdm(total=len(worlds), desc="worlds", disable=not progress)
-    pool = ProcessPoolExecutor(workers) if workers > 1 else None
+    # spawned, not forked: a fork of a process that has run torch's thread pool can hang
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) if workers > 1 else None
     try:
         for s in range(0, len(worlds), chunk):
             part = list(worlds[s:s + chunk])

@@ -62,7 +62,7 @@ from nanosysid.dataio import Flight
 from nanosysid.discover import generic
 from nanosysid.discover.fit import COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench, noise_floor
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
-from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, apply_corrections, entry, split_coefficients
+from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, refitted_vehicle, split_coefficients
 from nanosysid.errors import DataError, PredictionError
 from nanosysid.metrics import QUANTITIES
 from nanosysid.vehicle import Vehicle
@@ -321,7 +321,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             o["eligible"] = o["p"] <= alpha and size >= floor and o["sign_ok"]
             table.append({"candidate": name, "heldout_gain": float(gains.sum() / total), "size": size, "z": z, "p": o["p"],
                           "blocks_improved": int((gains > 0).sum()), "blocks": int(len(gains)),
-                          "physical_signs": bool(o["sign_ok"]), "eligible": bool(o["eligible"])})
+                          "plausible": bool(o["sign_ok"]), "eligible": bool(o["eligible"])})
         table.sort(key=lambda r: -r["heldout_gain"])
         rounds.append(table)
         eligible = [n for n, o in options.items() if o["eligible"]]
@@ -424,7 +424,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
 
     dk_f, dk_m = coef[NOMINAL.name]
     corrections = {n: LIBRARY[n].values(coef[n], v) for n in chosen if LIBRARY[n].kind == "correction"}
-    augmented_vehicle = apply_corrections(dataclasses.replace(v, k_f=v.k_f + dk_f, k_m=v.k_m + dk_m), corrections)
+    augmented_vehicle = refitted_vehicle(v, dk_f, dk_m, corrections)
     wrench = [n for n in chosen if LIBRARY[n].kind == "wrench"] + list(extra_terms)
     values = [x for n in chosen if LIBRARY[n].kind == "wrench" for x in coef[n]] + list(extra_terms.values())
     model = AugmentedPredictor(AugmentedStep(augmented_vehicle, wrench, values), delay=delay, name="discovered")
@@ -445,14 +445,21 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
 
 
 def _signs_ok(name: str, thetas: np.ndarray, search: _Search, chosen: list[str]) -> bool:
-    """No coefficient with a physical sign is negative by more than two standard errors."""
+    """No coefficient with a physical sign is negative by more than two standard errors, and a
+    correction stays within its bound of the nominal value."""
     c = LIBRARY[name]
     if c is DELAY:
         return True
     k = len(search.cols(chosen))  # the candidate's columns come last
     th = thetas[:, k:]
     mean, se = th.mean(axis=0), _jackknife(th)
-    return not any(s > 0 and m < -2 * e for s, m, e in zip(c.signs, mean, se))
+    if any(s > 0 and m < -2 * e for s, m, e in zip(c.signs, mean, se)):
+        return False
+    if c.bound is not None:
+        values = c.values(mean, search.vehicle)
+        if any(not np.isfinite(x) or abs(x) > c.bound * abs(n) for x, n in zip(values, c.nominal(search.vehicle))):
+            return False
+    return True
 
 
 def _best_delay(search: _Search, chosen: list[str], delays: Sequence[float]) -> float:
@@ -520,7 +527,7 @@ def _sindy_baseline(search: _Search, vehicle: Vehicle, test_flights, horizon, ba
     coef = generic.sparse_fit(terms, resid)
     kept, shown = generic.terms_of(coef, lib, range(6), search.weights)
     dk_f, dk_m = theta
-    step = AugmentedStep(dataclasses.replace(vehicle, k_f=vehicle.k_f + dk_f, k_m=vehicle.k_m + dk_m), list(kept),
+    step = AugmentedStep(refitted_vehicle(vehicle, dk_f, dk_m, {}), list(kept),
                          list(kept.values()))
     model = AugmentedPredictor(step, name="sindy")
     try:

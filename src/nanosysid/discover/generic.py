@@ -3,11 +3,11 @@ of physically meaningful signals (:data:`nanosysid.effects.TERM_SIGNALS`: body v
 rates, thrust, height).
 
 The terms are pysindy's polynomial library of those signals, and the sparse regression is
-pysindy's sequentially thresholded least squares (STLSQ) on unit-norm columns. The residual is
-weighted by its noise floor and every ``stride``-th sample kept (the smoothing filter
-correlates neighbours), so the noise on a normalised coefficient has about unit std and the
-threshold is a z-score: :data:`THRESHOLD`, about the two-sided 1 % level for the few hundred
-terms and channels tried.
+pysindy's sequentially thresholded least squares (STLSQ) on unit-norm columns. Samples are
+kept only as far apart as the residual decorrelates (the smoothing filter and slow
+disturbances correlate neighbours), and the residual is scaled by its own spread, so the scatter
+of a normalised coefficient is about one and the threshold is a z-score: :data:`THRESHOLD`,
+about the two-sided 1 % level for the few hundred terms and channels tried.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ import pysindy as ps
 
 from nanosysid.effects import CHANNELS, TERM_SIGNALS, term_name
 
-__all__ = ["TermLibrary", "sparse_fit", "heldout_gain", "THRESHOLD", "terms_of"]
+__all__ = ["TermLibrary", "sparse_fit", "heldout_gain", "decorrelation", "THRESHOLD", "terms_of"]
 
 THRESHOLD = 4.0
 
@@ -76,18 +76,38 @@ class TermLibrary:
         return out
 
 
-def sparse_fit(theta: np.ndarray, y: np.ndarray, *, threshold: float = THRESHOLD, stride: int = 5) -> np.ndarray:
-    """Sparse coefficients ``(C, M)`` of ``y (N, C) ≈ theta (N, M) @ coef.T``, ``y`` in units of
-    its noise, fitted on every ``stride``-th sample."""
+def decorrelation(y: np.ndarray, level: float = 0.2, max_lag: int = 200) -> int:
+    """The lag (samples) beyond which every column of ``y (N, C)`` is correlated by less than
+    ``level`` with itself: samples that far apart count as independent."""
+    y = y - y.mean(axis=0)
+    var = (y ** 2).sum(axis=0)
+    lag = 1
+    for k in range(1, min(max_lag, len(y) // 4)):
+        r = (y[k:] * y[:-k]).sum(axis=0) / np.maximum(var, 1e-300)
+        lag = k
+        if np.all(r < level):
+            break
+    return lag
+
+
+def sparse_fit(theta: np.ndarray, y: np.ndarray, *, threshold: float = THRESHOLD, stride: int | None = None) -> np.ndarray:
+    """Sparse coefficients ``(C, M)`` of ``y (N, C) ≈ theta (N, M) @ coef.T``.
+
+    Fitted on samples ``stride`` apart (by default the residual's own decorrelation lag, so they
+    count as independent) with each column of ``y`` in units of its own spread: a term stays
+    when its coefficient on a unit-norm column is ``threshold`` times the scatter it must stand
+    out of."""
+    stride = stride or decorrelation(y)
+    scale = np.maximum(y.std(axis=0), 1e-300)
     opt = ps.STLSQ(threshold=threshold, alpha=1e-9, normalize_columns=True, unbias=True, max_iter=20)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", UserWarning)  # "eliminated all coefficients": nothing to capture
-        opt.fit(theta[::stride], y[::stride])
-    return np.asarray(opt.coef_).reshape(y.shape[1], theta.shape[1])
+        opt.fit(theta[::stride], y[::stride] / scale)
+    return np.asarray(opt.coef_).reshape(y.shape[1], theta.shape[1]) * scale[:, None]
 
 
 def heldout_gain(theta: np.ndarray, y: np.ndarray, blocks: np.ndarray, fold: np.ndarray, *,
-                 threshold: float = THRESHOLD, stride: int = 5) -> np.ndarray:
+                 threshold: float = THRESHOLD, stride: int | None = None) -> np.ndarray:
     """Each block's held-out drop of the SSE of ``y (N, C)`` by the sparse fit, ``(B, C)``:
     fitted (terms chosen and coefficients) on the other folds, ``fold[b]`` the fold of block ``b``."""
     B = int(blocks.max()) + 1
@@ -95,6 +115,7 @@ def heldout_gain(theta: np.ndarray, y: np.ndarray, blocks: np.ndarray, fold: np.
     np.add.at(base, blocks, y ** 2)
     left = np.zeros_like(base)
     sample_fold = fold[blocks]
+    stride = stride or decorrelation(y)
     for k in np.unique(fold):
         train = sample_fold != k
         coef = sparse_fit(theta[train], y[train], threshold=threshold, stride=stride)

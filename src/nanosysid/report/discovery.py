@@ -221,7 +221,7 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
           "likely negative as positive; the one-sided Wilcoxon signed-rank test over the blocks gives a p-value, "
           f"multiplied by the number of candidates tried in the round (Bonferroni), which must be below "
           f"α = {result.alpha:g}; its size (the root of its held-out gain per sample, in noise floors) must be at "
-          f"least {result.floor:g}. Coefficients with a physical sign (drag, rotor inertia) must not come out negative. "
+          f"least {result.floor:g}. Coefficients with a physical sign (drag, rotor inertia) must not come out negative, and a correction of the inertia or the arm must stay within half the nominal value. "
           "Candidates the chosen one is not significantly better than (the same test on the difference of their "
           "held-out errors) make the finding ambiguous. A chosen entry must also explain at least half of what a "
           "generic sparse fit (pysindy's STLSQ over products of body velocity, rates, thrust and height) captures "
@@ -230,10 +230,10 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
           "inside each fold.", ""]
     for i, table in enumerate(result.rounds, 1):
         L += [f"Round {i}:", "", "| candidate | held-out gain | size [noise floors] | z | p (adjusted) | blocks improved | "
-              "physical signs | eligible |", "|---|---|---|---|---|---|---|---|"]
+              "plausible | eligible |", "|---|---|---|---|---|---|---|---|"]
         for r in table:
             L.append(f"| {r['candidate']} | {100 * r['heldout_gain']:.3f} % | {r['size']:.2f} | {r['z']:.1f} | {r['p']:.2g} | "
-                     f"{r['blocks_improved']} / {r['blocks']} | {'yes' if r['physical_signs'] else 'no'} | "
+                     f"{r['blocks_improved']} / {r['blocks']} | {'yes' if r['plausible'] else 'no'} | "
                      f"{'yes' if r['eligible'] else 'no'} |")
         L.append("")
     L += ["## Benchmark table", "", results_table_md(rows), ""]
