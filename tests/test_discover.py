@@ -81,16 +81,17 @@ _flights = {}
 
 def discovered(world):
     if not _flights:
-        specs = [sim.FlightSpec(trajectory=tr, run=1, effects=eff, seed=seed, extra_wrench=fn, name=f"{w}/{tr}")
+        specs = [sim.FlightSpec(trajectory=tr, run=1, effects=eff, seed=seed, extra_wrench=fn,
+                                name=f"{tr}_{w.replace('_', '-')}_run1")
                  for w, (eff, fn, seed) in WORLDS.items() for tr in ("square", "random", "chirp", "melon")]
         flights = sim.simulate_flights(specs, cfg=CFG, progress=False)
         for w in WORLDS:
-            _flights[w] = [f for f in flights if f.name.startswith(w + "/")]
+            _flights[w] = [f for f in flights if f.name.split("_")[1] == w.replace("_", "-")]
     if world not in _cache:
         eff, fn, seed = WORLDS[world]
         flights = _flights[world]
-        train = [f for f in flights if not f.name.endswith("melon")]
-        test = [f for f in flights if f.name.endswith("melon")]
+        train = [f for f in flights if f.trajectory != "melon"]
+        test = [f for f in flights if f.trajectory == "melon"]
         _cache[world] = discover.run(train, test, oracle=sim.oracle(eff, seed=seed, extra_wrench=fn),
                                      sindy=world in SINDY, analysis=world in ANALYSIS)
     return _cache[world]
@@ -203,7 +204,7 @@ def impact(world, effect):
     r = discovered(world)
     eff, fn, seed = WORLDS[world]
     rest = {k: v for k, v in eff.items() if k != effect}
-    test = [f for f in _flights[world] if f.name.endswith("melon")]
+    test = [f for f in _flights[world] if f.trajectory == "melon"]
     without = benchmark.evaluate(sim.oracle(rest, seed=seed, extra_wrench=fn), test).simerr
     return max((without[q] - r.oracle.simerr[q]) / r.before.simerr[q] for q in without)
 

@@ -140,16 +140,17 @@ def short_flights_config(duration: float = 20.0):
 
 
 def simulate(worlds: Sequence[World], cfg=None, *, progress: bool = False) -> dict[int, list]:
-    """Every world's flights (training ones, then the test one), all worlds in one batch."""
+    """Every world's flights (training ones, then the test one), all worlds in one batch; a
+    flight is named ``<trajectory>_w<world>_run1`` (the oracle finds its realisation by it)."""
     from nanosysid import sim
 
     cfg = cfg or short_flights_config()
     specs = [sim.FlightSpec(trajectory=tr, run=1, effects=w.effects, seed=w.seed, extra_wrench=w.extra_wrench,
-                            name=f"w{w.index}_{tr}") for w in worlds for tr in (*TRAIN, TEST)]
+                            name=f"{tr}_w{w.index}_run1") for w in worlds for tr in (*TRAIN, TEST)]
     flights = sim.simulate_flights(specs, cfg=cfg, progress=progress)
     out: dict[int, list] = {w.index: [] for w in worlds}
     for f in flights:
-        out[int(f.name.split("_")[0][1:])].append(f)
+        out[int(f.name.split("_")[1][1:])].append(f)
     return out
 
 
@@ -166,8 +167,8 @@ def judge(world: World, flights: Sequence, *, horizon: int = 50) -> dict[str, An
     from nanosysid import benchmark, discover, sim
 
     torch.set_num_threads(1)
-    train = [f for f in flights if not f.name.endswith(TEST)]
-    test = [f for f in flights if f.name.endswith(TEST)]
+    train = [f for f in flights if f.trajectory != TEST]
+    test = [f for f in flights if f.trajectory == TEST]
     oracle = sim.oracle(world.effects, seed=world.seed, extra_wrench=world.extra_wrench)
     r = discover.run(train, test, oracle=oracle, sindy=True, analysis=False, horizon=horizon)
     # each effect's share of the nominal SimErr: what the oracle loses without knowing it
