@@ -24,7 +24,7 @@ def _pct(x) -> str:
 
 
 def report(summary: dict) -> str:
-    L = [f"{summary['worlds']} worlds"]
+    L = [f"{summary['worlds']} worlds, {summary['failed']} where the augmented model diverged on the test flight"]
     L.append("recall (named or ambiguous with a describing entry) where the effect moves the nominal SimErr > 10 %:")
     for e, bins in sorted(summary["recall_counts"].items()):
         cells = [f"{b}: {c['hit_relevant']}/{c['relevant']} (all {c['hit']}/{c['worlds']})" for b, c in sorted(bins.items())]

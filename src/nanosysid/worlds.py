@@ -45,6 +45,7 @@ DESCRIBED_BY: dict[str, frozenset[str]] = {
     "unsteady_thrust": frozenset(),
 }
 STRENGTH_BINS = ((0.3, 0.7), (0.7, 1.5), (1.5, 3.0))
+TIME_VARYING = ("turbulence", "unsteady_thrust")  # no model of the state can know them
 TRAIN = ("square", "random", "chirp")
 TEST = "melon"
 K_F = 3.72e-8  # N s²/rad², the nominal thrust coefficient, for user effects that scale with thrust
@@ -165,12 +166,17 @@ def _relative_gap(before, after, oracle) -> float | None:
 def judge(world: World, flights: Sequence, *, horizon: int = 50) -> dict[str, Any]:
     """Discovery on one world's flights, and its verdicts scored against the world."""
     from nanosysid import benchmark, discover, sim
+    from nanosysid.errors import PredictionError
 
     torch.set_num_threads(1)
     train = [f for f in flights if f.trajectory != TEST]
     test = [f for f in flights if f.trajectory == TEST]
     oracle = sim.oracle(world.effects, seed=world.seed, extra_wrench=world.extra_wrench)
-    r = discover.run(train, test, oracle=oracle, sindy=True, analysis=False, horizon=horizon)
+    try:
+        r = discover.run(train, test, oracle=oracle, sindy=True, analysis=False, horizon=horizon)
+    except PredictionError as e:  # the augmented model diverges on the test flight: a failure of discovery
+        return {"world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
+                "user_strength": world.user_strength, "error": str(e)}
     # each effect's share of the nominal SimErr: what the oracle loses without knowing it
     impact = {}
     for e in world.effects:
@@ -178,6 +184,11 @@ def judge(world: World, flights: Sequence, *, horizon: int = 50) -> dict[str, An
         without = benchmark.evaluate(sim.oracle(rest, seed=world.seed, extra_wrench=world.extra_wrench), test,
                                      horizon=horizon).simerr
         impact[e] = float(max((without[q] - r.oracle.simerr[q]) / r.before.simerr[q] for q in without))
+    # the gap a model of the state can close: to the oracle that knows every effect but the
+    # time-varying ones (turbulence, the thrust fluctuation)
+    state = {k: v for k, v in world.effects.items() if k not in TIME_VARYING}
+    reachable = benchmark.evaluate(sim.oracle(state, seed=world.seed, extra_wrench=world.extra_wrench), test,
+                                   horizon=horizon).simerr if state != world.effects else r.oracle.simerr
     named = [f.name for f in r.findings if f.verdict == "named"]
     ambiguous = [list(f.alternatives) for f in r.findings if f.verdict == "ambiguous"]
     described = set().union(*(DESCRIBED_BY[e] for e in world.effects)) if world.effects else set()
@@ -191,10 +202,10 @@ def judge(world: World, flights: Sequence, *, horizon: int = 50) -> dict[str, An
         "impact": impact,
         "simerr": {"nominal": r.before.simerr, "discovered": r.after.simerr, "oracle": r.oracle.simerr,
                    "sindy": r.sindy["simerr"]},
-        "gap_closed": _relative_gap(r.before.simerr, r.after.simerr, r.oracle.simerr),
-        "sindy_gap_closed": _relative_gap(r.before.simerr, r.sindy["simerr"], r.oracle.simerr),
+        "gap_closed": _relative_gap(r.before.simerr, r.after.simerr, reachable),
+        "sindy_gap_closed": _relative_gap(r.before.simerr, r.sindy["simerr"], reachable),
         "sindy_terms": len(r.sindy["terms"]),
-        "gap_share": float(sum((r.before.simerr[q] - r.oracle.simerr[q]) / r.before.simerr[q] for q in r.before.simerr) / 4),
+        "gap_share": float(sum((r.before.simerr[q] - reachable[q]) / r.before.simerr[q] for q in r.before.simerr) / 4),
     }
 
 
@@ -234,6 +245,8 @@ def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict
     effect moves the nominal SimErr by more than ``relevant``), precision of named verdicts,
     clean worlds without a finding, out-of-library worlds without a false name, gap closed, and
     the plain SINDy model beside."""
+    failed = [r for r in rows if "error" in r]
+    rows = [r for r in rows if "error" not in r]
     recall: dict[str, dict[str, list[int]]] = {}
     for r in rows:
         for e, s in r["effects"].items():
@@ -251,13 +264,14 @@ def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict
     clean = [r for r in rows if not r["effects"] and r["user"] is None]
     ool = [r for r in rows if r["user"] is not None]
     state = [r for r in rows if r["gap_closed"] is not None and r["gap_share"] > 0.05
-             and any(e not in ("turbulence", "unsteady_thrust") for e in r["effects"])]
+             and any(e not in TIME_VARYING for e in r["effects"])]
     both = [r for r in rows if r["gap_closed"] is not None and r["sindy_gap_closed"] is not None and r["gap_share"] > 0.05]
     relevant_hits = {e: {b: (c[0] / c[1] if c[1] else None) for b, c in bins.items()} for e, bins in recall.items()}
     overall = {e: (sum(c[0] for c in bins.values()) / max(1, sum(c[1] for c in bins.values())))
                for e, bins in recall.items()}
     return {
-        "worlds": len(rows),
+        "worlds": len(rows) + len(failed),
+        "failed": len(failed),
         "recall_relevant": relevant_hits,
         "recall_relevant_overall": overall,
         "recall_counts": {e: {b: {"hit_relevant": c[0], "relevant": c[1], "hit": c[2], "worlds": c[3]}

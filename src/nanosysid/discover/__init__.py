@@ -89,7 +89,8 @@ class Finding:
             ``stderr`` and ``ci`` (95 %, jackknife over the folds) per coefficient,
             ``stability`` (share of the folds' refits that prefer it to every other candidate of
             its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
-            ``band``.
+            ``band``, and ``added`` False where its terms would make the training rollouts
+            diverge (they are then left out of the augmented model).
     """
 
     verdict: str
@@ -425,9 +426,17 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     dk_f, dk_m = coef[NOMINAL.name]
     corrections = {n: LIBRARY[n].values(coef[n], v) for n in chosen if LIBRARY[n].kind == "correction"}
     augmented_vehicle = refitted_vehicle(v, dk_f, dk_m, corrections)
-    wrench = [n for n in chosen if LIBRARY[n].kind == "wrench"] + list(extra_terms)
-    values = [x for n in chosen if LIBRARY[n].kind == "wrench" for x in coef[n]] + list(extra_terms.values())
-    model = AugmentedPredictor(AugmentedStep(augmented_vehicle, wrench, values), delay=delay, name="discovered")
+    named_wrench = [n for n in chosen if LIBRARY[n].kind == "wrench"]
+    named_values = [x for n in named_wrench for x in coef[n]]
+    model = AugmentedPredictor(AugmentedStep(augmented_vehicle, named_wrench + list(extra_terms),
+                                             named_values + list(extra_terms.values())), delay=delay, name="discovered")
+    if extra_terms and not _stable(model, train_flights, horizon, batch_size):
+        # a sparse fit that makes the training rollouts diverge does not join the model
+        model = AugmentedPredictor(AugmentedStep(augmented_vehicle, named_wrench, named_values), delay=delay,
+                                   name="discovered")
+        for f in findings:
+            if f.verdict == "unnamed":
+                f.evidence["added"] = False
     nominal = AugmentedPredictor(AugmentedStep(v), name="nominal")
     before = benchmark.evaluate(nominal, test_flights, horizon=horizon, batch_size=batch_size)
     after = benchmark.evaluate(model, test_flights, horizon=horizon, batch_size=batch_size)
@@ -442,6 +451,15 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         result.analysis = disagreement(result, search, names, theta, delay, test_flights,
                                        generic_fits=generic_fits, horizon=horizon, batch_size=batch_size)
     return result
+
+
+def _stable(model: AugmentedPredictor, flights: Sequence[Flight], horizon: int, batch_size: int) -> bool:
+    """Whether the model's rollouts stay finite over every window of ``flights``."""
+    try:
+        benchmark.evaluate(model, flights, horizon=horizon, batch_size=batch_size)
+    except PredictionError:
+        return False
+    return True
 
 
 def _signs_ok(name: str, thetas: np.ndarray, search: _Search, chosen: list[str]) -> bool:

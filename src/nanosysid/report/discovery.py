@@ -81,8 +81,10 @@ def _verdict_line(f) -> str:
                 f"model uses `{ev['used']}`, the one with the lowest held-out residual. Flights that would tell them "
                 f"apart: {how}.")
     where = (f" It is largest at {ev['regime']}, in the band {ev['band']}." if "regime" in ev else "")
+    added = ("the augmented model adds those terms" if ev.get("added", True) else
+             "its terms would make the rollouts on the training flights diverge, so the augmented model leaves them out")
     return (f"**Unnamed** disagreement on {', '.join(f.channels)} ({stats}): no library entry explains it; a sparse fit "
-            f"of generic terms captures it, and the augmented model adds those terms.{where}")
+            f"of generic terms captures it, and {added}.{where}")
 
 
 def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
@@ -221,7 +223,7 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
           "likely negative as positive; the one-sided Wilcoxon signed-rank test over the blocks gives a p-value, "
           f"multiplied by the number of candidates tried in the round (Bonferroni), which must be below "
           f"α = {result.alpha:g}; its size (the root of its held-out gain per sample, in noise floors) must be at "
-          f"least {result.floor:g}. Coefficients with a physical sign (drag, rotor inertia) must not come out negative, and a correction of the inertia or the arm must stay within half the nominal value. "
+          f"least {result.floor:g}. Coefficients with a physical sign (drag, rotor inertia) must not come out negative, and a correction must stay plausible (the inertia within 100 % of the nominal, the arm within 10 %, a rotor's spread within 25 %). "
           "Candidates the chosen one is not significantly better than (the same test on the difference of their "
           "held-out errors) make the finding ambiguous. A chosen entry must also explain at least half of what a "
           "generic sparse fit (pysindy's STLSQ over products of body velocity, rates, thrust and height) captures "
