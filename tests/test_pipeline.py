@@ -255,7 +255,7 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     wrench = [n for n in used if discover_library[n].kind == "wrench"]
     assert [n for n in model["effects"] if not n.startswith("term:")] == wrench
     assert all(f["verdict"] in ("named", "ambiguous", "unnamed") for f in result["findings"])
-    assert set(result["simerr"]) == {"nominal", "discovered", "oracle"}
+    assert set(result["simerr"]) == {"nominal", "discovered", "oracle", "sindy"}
     scores = json.loads((tiny / "eval" / "discovered" / "scores.json").read_text())
     assert scores["simerr"] == pytest.approx(result["simerr"]["discovered"])
     # the nominal model of discovery is the full physics model (rotor torques integrated) that
