@@ -33,7 +33,6 @@ Rotor layout and spin directions are :mod:`nanosysid.dynamics`'.
 from __future__ import annotations
 
 import dataclasses
-import itertools
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -45,7 +44,7 @@ from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, signed_sum
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["CHANNELS", "Signals", "Effect", "LIBRARY", "NOMINAL", "DELAY", "TERM_SIGNALS", "signals", "features",
-           "wrench", "split_coefficients", "entry", "term_name", "generic_terms", "apply_corrections", "refitted_vehicle"]
+           "wrench", "split_coefficients", "entry", "term_name", "apply_corrections", "refitted_vehicle"]
 
 CHANNELS = ("F_x", "F_y", "F_z", "tau_x", "tau_y", "tau_z")
 
@@ -323,15 +322,6 @@ TERM_SIGNALS: dict[str, tuple[str, Callable[[Signals, Vehicle], Any]]] = {
     "z": ("m", lambda sg, vh: sg.z),
 }
 TERM_PREFIX = "term"
-
-
-def generic_terms(degree: int = 2) -> list[str]:
-    """The generic terms' products: ``"1"``, each signal, and their products up to ``degree``."""
-    names = list(TERM_SIGNALS)
-    out = ["1"]
-    for d in range(1, degree + 1):
-        out += ["*".join(c) for c in itertools.combinations_with_replacement(names, d)]
-    return out
 
 
 def term_name(channel: str, product: str) -> str:

@@ -63,8 +63,8 @@ def _fmt(x: float) -> str:
     return f"{x:.4g}"
 
 
-def _unit(channel: str) -> tuple[float, str]:
-    return (1e3, "mN") if channel.startswith("F") else (1e3, "mN·m")
+def _unit(channel: str) -> str:
+    return "mN" if channel.startswith("F") else "mN·m"
 
 
 def _verdict_line(f) -> str:
@@ -176,7 +176,7 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
               "measurement noise left after the smoothing, estimated from the data (accelerometer, gyro and "
               "rotor speeds) "
               f"({a['samples']['train']} training and {a['samples']['test']} test samples).", "",
-              "| | " + " | ".join(f"{c} [{_unit(c)[1]}]" for c in CHANNELS) + " |", "|---|" + "---|" * 6]
+              "| | " + " | ".join(f"{c} [{_unit(c)}]" for c in CHANNELS) + " |", "|---|" + "---|" * 6]
         L.append("| noise floor | " + " | ".join(f"{1e3 * x:.3g}" for x in a["noise"]) + " |")
         for part in ("train", "test"):
             for when in ("before", "after"):
@@ -198,7 +198,7 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
         L += ["", f"**By flight regime** (training flights, quartiles of each variable): RMS of the two channels that "
               f"carry the largest share of the SimErr ({', '.join(a['regime_channels'])}), nominal → with what was "
               "found.", ""]
-        L += ["| regime | quartile range | " + " | ".join(f"{CHANNELS[c]} [{_unit(CHANNELS[c])[1]}]" for c in worst)
+        L += ["| regime | quartile range | " + " | ".join(f"{CHANNELS[c]} [{_unit(CHANNELS[c])}]" for c in worst)
               + " |", "|---|---|" + "---|" * len(worst)]
         for k in REGIMES:
             g = a["regimes"][k]
