@@ -47,6 +47,31 @@ def test_inertia_columns_are_the_first_order_change_of_the_measured_torque():
     assert effects.LIBRARY["inertia"].values(c, v) == pytest.approx(dJ.tolist(), rel=1e-9)
 
 
+def test_rotor_spread_is_each_rotor_off_by_its_own_share():
+    # rotors of k_F (1 + d_i), k_M (1 + d_i) with the d_i averaging zero: the extra thrust and
+    # torques, rotor by rotor from the mixer written out by hand (rotors at (+-L/sqrt2, +-L/sqrt2),
+    # spins + - + -), are the entry's columns times the coefficients whose physical values are d
+    rng = np.random.default_rng(2)
+    v = Vehicle()
+    n = 32
+    x = torch.from_numpy(_state(rng, n))
+    om = torch.from_numpy(rng.uniform(1500, 2500, (n, 4)))
+    d = np.array([0.03, -0.02, 0.025, -0.035])
+    d -= d.mean()
+    s = om.numpy() ** 2 * d
+    kl = v.k_f * v.arm
+    extra = np.column_stack([v.k_f * s.sum(1), kl * (-s[:, 0] - s[:, 1] + s[:, 2] + s[:, 3]),
+                             kl * (-s[:, 0] + s[:, 1] + s[:, 2] - s[:, 3]), v.k_m * (-s[:, 0] + s[:, 1] - s[:, 2] + s[:, 3])])
+    e = effects.LIBRARY["rotor_spread"]
+    # the coefficients whose physical values are d: the map is linear, solve it column by column
+    basis = np.array([e.values(row, v) for row in np.eye(e.n_columns)]).T  # (4, columns)
+    a, *_ = np.linalg.lstsq(basis, d, rcond=None)
+    assert e.values(a, v) == pytest.approx(d.tolist(), abs=1e-12)
+    cols = effects.features(["rotor_spread"], x, om, torch.zeros_like(om), v).numpy()  # (n, 6, 3)
+    assert np.allclose(cols[:, 2:, :] @ a, extra, rtol=1e-9, atol=1e-12 * np.abs(extra).max())
+    assert np.allclose(cols[:, :2, :], 0.0)
+
+
 def test_generic_terms_back_in_raw_products_are_the_same_function():
     rng = np.random.default_rng(1)
     names = list(effects.TERM_SIGNALS)

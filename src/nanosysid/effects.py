@@ -104,6 +104,14 @@ class Effect:
     # disturbance the controller fights correlates with every column proportional to the rotor
     # torque)
     bound: float | None = None
+    # number of columns where it differs from the number of physical parameters (``physical``
+    # maps the columns' coefficients to them)
+    width: int | None = None
+
+    @property
+    def n_columns(self) -> int:
+        """Number of columns (coefficients in the regression and the augmented model)."""
+        return self.width if self.width is not None else len(self.params)
 
     def nominal(self, vehicle: Vehicle) -> list[float]:
         """The values :attr:`bound` is a share of: a correction's nominal values, 1 for a
@@ -183,16 +191,26 @@ def _cg_offset(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     return rows
 
 
+# the zero-mean patterns of four rotors' spread: roll, pitch and yaw pairs (orthogonal). The
+# common mode, every rotor off by the same share, is the refitted k_F and k_M and the arm.
+SPREAD_MODES = (ROTOR_Y, ROTOR_X, SPIN)
+
+
 def _rotor_spread(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    # rotor i with k_F (1 + d_i) and k_M (1 + d_i) adds d_i times its own column of the mixer
+    # rotor i with k_F (1 + d_i) and k_M (1 + d_i) adds d_i times its own column of the mixer;
+    # d = sum_j a_j SPREAD_MODES[j], one column per mode
     kl = vehicle.k_f * vehicle.arm
-    rows = _zero_rows(4)
-    for i in range(4):
-        rows[2][i] = vehicle.k_f * sg.s[i]
-        rows[3][i] = (kl * ROTOR_Y[i]) * sg.s[i]
-        rows[4][i] = (-kl * ROTOR_X[i]) * sg.s[i]
-        rows[5][i] = (-vehicle.k_m * SPIN[i]) * sg.s[i]
+    per_rotor = [[vehicle.k_f * sg.s[i] for i in range(4)], [(kl * ROTOR_Y[i]) * sg.s[i] for i in range(4)],
+                 [(-kl * ROTOR_X[i]) * sg.s[i] for i in range(4)], [(-vehicle.k_m * SPIN[i]) * sg.s[i] for i in range(4)]]
+    rows = _zero_rows(3)
+    for j, mode in enumerate(SPREAD_MODES):
+        for r, row in zip((2, 3, 4, 5), per_rotor):
+            rows[r][j] = signed_sum(mode, row)
     return rows
+
+
+def _spread_values(theta: Sequence[float], vehicle: Vehicle) -> list[float]:
+    return [float(sum(a * m[i] for a, m in zip(theta, SPREAD_MODES))) for i in range(4)]
 
 
 def _rotor_gyro(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
@@ -290,9 +308,11 @@ LIBRARY: dict[str, Effect] = {e.name: e for e in (
     Effect("cg_offset", "centre of gravity at (r_x, r_y) off the rotors' centre: the thrust torques roll and pitch, "
            "tau = T (-r_y, r_x, 0)", ("r_x [m]", "r_y [m]"), _cg_offset, ("R", "w"), (0, 0),
            excited_by="throttle steps at level attitude: the torque follows the collective thrust"),
-    Effect("rotor_spread", "rotors of unequal coefficients k_F (1 + d_i), k_M (1 + d_i) (manufacturing spread, wear)",
-           ("d_1 [-]", "d_2 [-]", "d_3 [-]", "d_4 [-]"), _rotor_spread, ("p", "v", "R", "w"), (0, 0, 0, 0),
-           excited_by="yaw manoeuvres, which spin the two rotor pairs at different speeds", bound=0.25),
+    Effect("rotor_spread", "rotors of unequal coefficients k_F (1 + d_i), k_M (1 + d_i) (manufacturing spread, wear); "
+           "the d_i average zero (their mean is in the refitted k_F and k_M)",
+           ("d_1 [-]", "d_2 [-]", "d_3 [-]", "d_4 [-]"), _rotor_spread, ("p", "v", "R", "w"), (0, 0, 0),
+           excited_by="yaw manoeuvres, which spin the two rotor pairs at different speeds",
+           physical=_spread_values, bound=0.25, width=3),
     Effect("rotor_gyro", "rotor inertia J_r: gyroscopic torque -ω × (0, 0, J_r Σ s_i Ω_i) and yaw reaction "
            "-J_r Σ s_i dΩ_i/dt", ("J_r [kg m²]",), _rotor_gyro, ("R", "w"), (1,),
            excited_by="quick yaw-rate changes and roll/pitch rates during yaw"),
@@ -425,7 +445,7 @@ def split_coefficients(names: Sequence[str], theta: Sequence[float]) -> dict[str
     """A coefficient vector laid out as :func:`features` lays out its columns, per effect."""
     out, k = {}, 0
     for name in names:
-        n = len(entry(name).params)
+        n = entry(name).n_columns
         out[name] = [float(t) for t in theta[k:k + n]]
         k += n
     if k != len(theta):

@@ -140,18 +140,32 @@ def short_flights_config(duration: float = 20.0):
     }})
 
 
-def simulate(worlds: Sequence[World], cfg=None, *, progress: bool = False) -> dict[int, list]:
-    """Every world's flights (training ones, then the test one), all worlds in one batch; a
-    flight is named ``<trajectory>_w<world>_run1`` (the oracle finds its realisation by it)."""
+def simulate(worlds: Sequence[World], cfg=None, *, progress: bool = False) -> dict[int, tuple[list, dict]]:
+    """Every world's flights (training ones, then the test one), and its test flight flown again
+    without each of its simulator effects (same seed: the same noise and realisations), all
+    worlds in one batch. A flight is named ``<trajectory>_w<world>_run1`` (the oracle finds its
+    realisation by it). Returns world index -> (flights, effect -> test flight without it)."""
     from nanosysid import sim
 
     cfg = cfg or short_flights_config()
-    specs = [sim.FlightSpec(trajectory=tr, run=1, effects=w.effects, seed=w.seed, extra_wrench=w.extra_wrench,
-                            name=f"{tr}_w{w.index}_run1") for w in worlds for tr in (*TRAIN, TEST)]
+    specs, keys = [], []
+    for w in worlds:
+        for tr in (*TRAIN, TEST):
+            specs.append(sim.FlightSpec(trajectory=tr, run=1, effects=w.effects, seed=w.seed,
+                                        extra_wrench=w.extra_wrench, name=f"{tr}_w{w.index}_run1"))
+            keys.append((w.index, None))
+        for e in w.effects:
+            rest = {k: v for k, v in w.effects.items() if k != e}
+            specs.append(sim.FlightSpec(trajectory=TEST, run=1, effects=rest, seed=w.seed,
+                                        extra_wrench=w.extra_wrench, name=f"{TEST}_w{w.index}_run1"))
+            keys.append((w.index, e))
     flights = sim.simulate_flights(specs, cfg=cfg, progress=progress)
-    out: dict[int, list] = {w.index: [] for w in worlds}
-    for f in flights:
-        out[int(f.name.split("_")[1][1:])].append(f)
+    out: dict[int, tuple[list, dict]] = {w.index: ([], {}) for w in worlds}
+    for (i, e), f in zip(keys, flights):
+        if e is None:
+            out[i][0].append(f)
+        else:
+            out[i][1][e] = f
     return out
 
 
@@ -163,8 +177,9 @@ def _relative_gap(before, after, oracle) -> float | None:
     return float(sum((before[q] - after[q]) / before[q] for q in before) / gap)
 
 
-def judge(world: World, flights: Sequence, *, horizon: int = 50) -> dict[str, Any]:
-    """Discovery on one world's flights, and its verdicts scored against the world."""
+def judge(world: World, flights: Sequence, without: dict | None = None, *, horizon: int = 50) -> dict[str, Any]:
+    """Discovery on one world's flights, and its verdicts scored against the world; ``without``
+    (effect -> the test flight flown without it) gives each effect's impact on the nominal SimErr."""
     from nanosysid import benchmark, discover, sim
     from nanosysid.errors import PredictionError
 
@@ -177,13 +192,12 @@ def judge(world: World, flights: Sequence, *, horizon: int = 50) -> dict[str, An
     except PredictionError as e:  # the augmented model diverges on the test flight: a failure of discovery
         return {"world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
                 "user_strength": world.user_strength, "error": str(e)}
-    # each effect's share of the nominal SimErr: what the oracle loses without knowing it
+    # each effect's impact: how far the nominal model's SimErr on the test flight moves when the
+    # world loses that effect (largest relative change over the four quantities)
     impact = {}
-    for e in world.effects:
-        rest = {k: v for k, v in world.effects.items() if k != e}
-        without = benchmark.evaluate(sim.oracle(rest, seed=world.seed, extra_wrench=world.extra_wrench), test,
-                                     horizon=horizon).simerr
-        impact[e] = float(max((without[q] - r.oracle.simerr[q]) / r.before.simerr[q] for q in without))
+    for e, flight in (without or {}).items():
+        other = benchmark.evaluate(r.nominal, [flight], horizon=horizon).simerr
+        impact[e] = float(max(abs(r.before.simerr[q] - other[q]) / r.before.simerr[q] for q in other))
     # the gap a model of the state can close: to the oracle that knows every effect but the
     # time-varying ones (turbulence, the thrust fluctuation)
     state = {k: v for k, v in world.effects.items() if k not in TIME_VARYING}
@@ -210,8 +224,8 @@ def judge(world: World, flights: Sequence, *, horizon: int = 50) -> dict[str, An
 
 
 def _judge(args):
-    world, flights, horizon = args
-    return judge(world, flights, horizon=horizon)
+    world, (flights, without), horizon = args
+    return judge(world, flights, without, horizon=horizon)
 
 
 def check(worlds: Sequence[World], *, workers: int = 1, cfg=None, horizon: int = 50, progress: bool = True,
@@ -256,7 +270,7 @@ def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict
             cell = recall.setdefault(e, {}).setdefault(b, [0, 0, 0, 0])  # hit, n (relevant); hit, n (all)
             cell[2] += r["recalled"][e]
             cell[3] += 1
-            if r["impact"][e] > relevant:
+            if r["impact"].get(e, 0.0) > relevant:
                 cell[0] += r["recalled"][e]
                 cell[1] += 1
     named = sum(len(r["named"]) for r in rows)

@@ -182,7 +182,7 @@ class _Search:
         self.offsets = {}
         k = 0
         for name in COLUMN_ENTRIES:
-            P = len(entry(name).params)
+            P = entry(name).n_columns
             self.offsets[name] = np.arange(k, k + P)
             k += P
 
@@ -366,10 +366,9 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     cols = search.cols(chosen)
     theta = g.solve(cols)
     _, thetas = g.heldout(cols)
-    se = _jackknife(thetas)
     names = [NOMINAL.name, *chosen]
     coef = split_coefficients(names, theta)
-    errs = split_coefficients(names, se)
+    fold_coef = [split_coefficients(names, t) for t in thetas]
     findings: list[Finding] = []
     named_later = set(chosen) | ({DELAY.name} if delay else set())
     for pk in kept:
@@ -380,11 +379,12 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             stderr = {DELAY.params[0]: _delay_stderr(search, chosen, (0.0,) + delays)}
             channels = CHANNELS
         else:
-            th, e = np.array(coef[name]), np.array(errs[name])
+            th = np.array(coef[name])
             params = dict(zip(c.params, c.values(th, v)))
-            # the interval's ends through the same (monotonic) map; the error as half its width
-            lo, hi = c.values(th - 1.96 * e, v), c.values(th + 1.96 * e, v)
-            stderr = {k: abs(b - a) / (2 * 1.96) for k, a, b in zip(c.params, lo, hi)}
+            # jackknife of the physical values themselves: the map from the columns' coefficients
+            # may be nonlinear (inertia) or mix them (rotor spread)
+            se = _jackknife(np.array([c.values(fc[name], v) for fc in fold_coef]))
+            stderr = dict(zip(c.params, (float(x) for x in se)))
             channels = _channels_of(search, name, th, delay)
         alts = [a for a in pk["alternatives"] if a not in named_later]
         ev = {k: pk[k] for k in ("round", "heldout_gain", "size", "z", "p", "blocks_improved", "blocks")}
@@ -524,7 +524,7 @@ def _explains(search: _Search, chosen: list[str], name: str, delay: float, cache
     g = search.grams(delay)
     base, _ = g.heldout(search.cols(others), per_channel=True)
     mine, _ = g.heldout(search.cols(others + [name]), per_channel=True)
-    own = g.solve(search.cols(others + [name]))[-len(entry(name).params):]
+    own = g.solve(search.cols(others + [name]))[-entry(name).n_columns:]
     channels = [CHANNELS.index(c) for c in _channels_of(search, name, own, delay)]
     if not channels:
         return 0.0

@@ -117,9 +117,9 @@ def load_discovered(path: str | Path, *, name: str = "discovered") -> AugmentedP
             raise DataError(f"{path}: {err.args[0]}; rerun the discover stage") from None
         if e.kind != "wrench":
             raise DataError(f"{path}: {n!r} is a {e.kind}, not an extra wrench: it belongs in the vehicle or the delay")
-        if len(d["effects"][n]["coefficients"]) != len(e.params):
+        if len(d["effects"][n]["coefficients"]) != e.n_columns:
             raise DataError(f"{path}: effect {n!r} has {len(d['effects'][n]['coefficients'])} coefficients, "
-                            f"expected {len(e.params)}")
+                            f"expected {e.n_columns}")
     theta = [c for n in names for c in d["effects"][n]["coefficients"]]
     step = AugmentedStep(vehicle, names, theta, dt=float(d["dt"]), substeps=int(d["substeps"]))
     return AugmentedPredictor(step, delay=float(d["delay"]), name=name)
