@@ -10,15 +10,14 @@ Example::
 
     from nanosysid import worlds
     draws = worlds.draw(60, seed=0)
-    rows = worlds.check(draws, workers=2)      # one row per world
+    rows = worlds.check(draws, launcher=Launcher(workers=2))   # one row per world
+                                               # (nanosysid.launcher.Launcher)
     summary = worlds.summarize(rows)
 """
 
 from __future__ import annotations
 
 import math
-import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -183,7 +182,6 @@ def judge(world: World, flights: Sequence, without: dict | None = None, *, horiz
     from nanosysid import benchmark, discover, sim
     from nanosysid.errors import PredictionError
 
-    torch.set_num_threads(1)
     train = [f for f in flights if f.trajectory != TEST]
     test = [f for f in flights if f.trajectory == TEST]
     oracle = sim.oracle(world.effects, seed=world.seed, extra_wrench=world.extra_wrench)
@@ -223,35 +221,24 @@ def judge(world: World, flights: Sequence, without: dict | None = None, *, horiz
     }
 
 
-def _judge(args):
-    world, (flights, without), horizon = args
-    return judge(world, flights, without, horizon=horizon)
+def _check_chunk(worlds: Sequence[World], cfg, horizon: int) -> list[dict[str, Any]]:
+    """One task of the launcher: a few worlds simulated in one batch, then judged one by one."""
+    flights = simulate(worlds, cfg)
+    return [judge(w, *flights[w.index], horizon=horizon) for w in worlds]
 
 
-def check(worlds: Sequence[World], *, workers: int = 1, cfg=None, horizon: int = 50, progress: bool = True,
-          chunk: int = 16) -> list[dict[str, Any]]:
-    """Simulate and judge every world; ``workers`` processes judge worlds side by side, the
-    rows come back in the worlds' order whatever their number."""
-    from tqdm import tqdm
+def check(worlds: Sequence[World], *, launcher=None, cfg=None, horizon: int = 50, chunk: int = 4,
+          progress: bool = True) -> list[dict[str, Any]]:
+    """Simulate and judge every world, ``chunk`` worlds to a task of ``launcher``
+    (:class:`nanosysid.launcher.Launcher`; None: one process here). The rows come back in the
+    worlds' order, the same whatever the launcher and its number of workers."""
+    from nanosysid.launcher import map_tasks
 
-    rows: list[dict[str, Any]] = []
-    bar = tqdm(total=len(worlds), desc="worlds", disable=not progress)
-    # spawned, not forked: a fork of a process that has run torch's thread pool can hang
-    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) if workers > 1 else None
-    try:
-        for s in range(0, len(worlds), chunk):
-            part = list(worlds[s:s + chunk])
-            flights = simulate(part, cfg)
-            jobs = [(w, flights[w.index], horizon) for w in part]
-            it = pool.map(_judge, jobs) if pool else map(_judge, jobs)
-            for row in it:
-                rows.append(row)
-                bar.update()
-    finally:
-        if pool:
-            pool.shutdown()
-        bar.close()
-    return rows
+    cfg = cfg or short_flights_config()
+    tasks = [(list(worlds[s:s + chunk]), cfg, horizon) for s in range(0, len(worlds), chunk)]
+    parts = map_tasks(_check_chunk, tasks, launcher, progress=progress, desc=f"worlds ({chunk} a task)",
+                      name="nanosysid-campaign")
+    return [row for part in parts for row in part]
 
 
 def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict[str, Any]:
@@ -285,6 +272,8 @@ def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict
                for e, bins in recall.items()}
     return {
         "worlds": len(rows) + len(failed),
+        "relevant": relevant,
+        "strength_bins": [list(b) for b in STRENGTH_BINS],
         "failed": len(failed),
         "recall_relevant": relevant_hits,
         "recall_relevant_overall": overall,
