@@ -10,6 +10,7 @@ from omegaconf import DictConfig
 from nanosysid import benchmark, discover
 from nanosysid.dataio import atomic_dir
 from nanosysid.discover.model import save_discovered
+from nanosysid.effects import entry
 from nanosysid.identify import identified_vehicle
 from nanosysid.models import build_from_options
 from nanosysid.report.discovery import write_report
@@ -28,11 +29,12 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     bench = benchmark.load(cfg.paths.split, horizon=H)
     vehicle = identified_vehicle(vehicle_of(cfg), dc.identified)
     delays = np.arange(1, int(round(float(dc.delay_max) / float(dc.delay_step))) + 1) * float(dc.delay_step)
-    result = discover.run(bench.train, bench.test, vehicle=vehicle, threshold=float(dc.threshold),
+    result = discover.run(bench.train, bench.test, vehicle=vehicle, alpha=float(dc.alpha), share=float(dc.share),
+                          block=float(dc.block), folds=int(dc.folds), sindy=bool(dc.sindy),
                           delays=tuple(delays), window=int(dc.savgol_window), order=int(dc.savgol_order), horizon=H,
                           oracle=oracle, batch_size=int(cfg.eval.batch_size))
     step = result.model.step
-    effects = {name: {"params": list(discover.LIBRARY[name].params), "coefficients": coef}
+    effects = {name: {"params": list(entry(name).params), "coefficients": coef}
                for name, coef in step.coefficients().items()}
     save_discovered(Path(dc.out_dir) / "model.json", result.vehicle, effects, result.model.delay,
                     dt=step.dt, substeps=step.substeps)

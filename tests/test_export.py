@@ -233,7 +233,8 @@ def test_discovered_model_exports_to_c_and_onnx(tmp_path):
     from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 
     effects = {"induced_drag": [1.8e-6, 1.0e-6], "quadratic_drag": [1.5e-3, 3.0e-3], "cg_offset": [1.5e-3, -1.0e-3],
-               "rotor_spread": [0.03, -0.02, 0.025, -0.035], "rotor_gyro": [3.9e-8]}
+               "rotor_spread": [0.01, -0.02, 0.005], "rotor_gyro": [3.9e-8], "drag_moment": [2e-4],
+               "induced_rate_damping": [1e-9, 2e-9], "term:tau_x:v_y*w_z": [1e-5], "term:F_z:T*z": [-0.01]}
     step = AugmentedStep(Vehicle(), list(effects), [c for v in effects.values() for c in v])
     ex = augmented_step(AugmentedPredictor(step, delay=0.03), "discovered")
     assert ex.nu == 8 and "#define NSI_NU 8" in ex.c.header and "fabsf(" in ex.c.source

@@ -10,6 +10,7 @@ import pytest
 
 from nanosysid import config
 from nanosysid.dataio import read_flight_csv
+from nanosysid.effects import LIBRARY as discover_library
 from stages import (compare, discover, evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report,
                     simulate, split, sync, train, visualize)
 from stages.common import run_stage
@@ -24,6 +25,7 @@ TINY_SIM = [
     "sim.flight.trajectories.melon={duration: 3.0, circle_time: 2.0, return_time: 0.5}",
     "export.mcu.start=10",
     "export.mcu.steps=20",
+    "discover.block=0.5",
 ] + [f"models.{m}.train.{k}" for m in ("residual", "phys_res", "lstm")
      for k in ("epochs=2", "stride=10", "val_runs=[2]")]
 LEARNED = ("residual", "phys_res", "lstm")
@@ -248,10 +250,12 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     tiny = evaluated(tiny)
     model = json.loads((tiny / "discovered" / "model.json").read_text())
     result = json.loads((tiny / "discovery" / "result.json").read_text())
-    assert model["format"] == "nanosysid-discovered-1" and list(model["effects"]) == [
-        f["name"] for f in result["found"] if f["name"] != "input_delay"]
-    assert result["model"] == "+".join(["physics"] + [f["name"] for f in result["found"]])
-    assert set(result["simerr"]) == {"nominal", "discovered", "oracle"}
+    assert model["format"] == "nanosysid-discovered-1"
+    used = [f["name"] or f["alternatives"][0] for f in result["findings"] if f["verdict"] != "unnamed"]
+    wrench = [n for n in used if discover_library[n].kind == "wrench"]
+    assert [n for n in model["effects"] if not n.startswith("term:")] == wrench
+    assert all(f["verdict"] in ("named", "ambiguous", "unnamed") for f in result["findings"])
+    assert set(result["simerr"]) == {"nominal", "discovered", "oracle", "sindy"}
     scores = json.loads((tiny / "eval" / "discovered" / "scores.json").read_text())
     assert scores["simerr"] == pytest.approx(result["simerr"]["discovered"])
     # the nominal model of discovery is the full physics model (rotor torques integrated) that
@@ -262,11 +266,13 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     assert result["simerr"]["oracle"] == pytest.approx(oracle["simerr"], rel=1e-9)
     # each named effect is in the report with the coefficients of the result
     text = (tiny / "discovery" / "report.md").read_text()
-    for f in result["found"]:
-        assert f"`{f['name']}` named" in text
-        for param, value in f["params"].items():
-            shown = re.search(rf"{re.escape(param)} = ([-+0-9.e]+)", text)
-            assert shown and float(shown.group(1)) == pytest.approx(value, rel=5e-3), param
+    assert "## Verdicts" in text
+    for f in result["findings"]:
+        if f["verdict"] == "named":
+            assert f"`{f['name']}` named" in text
+            for param, value in f["params"].items():
+                shown = re.search(rf"\| {re.escape(param)} \| ([-+0-9.e]+) \|", text)
+                assert shown and float(shown.group(1)) == pytest.approx(value, rel=5e-3), param
 
 
 def test_visualize_writes_a_recording_per_test_flight(tiny):

@@ -24,7 +24,7 @@ from omegaconf import DictConfig, OmegaConf
 
 from nanosysid.errors import ConfigError
 
-__all__ = ["compose", "compose_text", "load_params", "apply_overrides", "check_values"]
+__all__ = ["compose", "compose_text", "load_params", "select_groups", "apply_overrides", "check_values"]
 
 # relative to the working directory: stages run from the root of the project they belong to
 # (DVC runs them there, also in the temporary copies of `dvc exp run`)
@@ -72,13 +72,32 @@ def apply_overrides(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
     return cfg
 
 
+def select_groups(cfg: DictConfig, overrides: Sequence[str], *, conf_dir: Path = CONF_DIR) -> list[str]:
+    """Apply the overrides that choose a config group's option (``launcher=slurm``: the block
+    ``launcher`` becomes ``conf/launcher/slurm.yaml``), as composing would; return the others."""
+    rest = []
+    for o in overrides:
+        key, eq, value = o.partition("=")
+        group = Path(conf_dir) / key
+        if eq and key.isidentifier() and group.is_dir() and OmegaConf.is_dict(cfg.get(key)):
+            option = group / f"{value}.yaml"
+            if not option.is_file():
+                known = ", ".join(sorted(p.stem for p in group.glob("*.yaml")))
+                raise ConfigError(f"{o}: no option {value!r} in {group}/ (known: {known})")
+            cfg[key] = OmegaConf.load(option)
+        else:
+            rest.append(o)
+    return rest
+
+
 def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> DictConfig:
-    """Read ``params.yaml`` and apply overrides; interpolations are resolved."""
+    """Read ``params.yaml`` and apply overrides (a group's option, ``launcher=slurm``, as well
+    as values); interpolations are resolved."""
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: not found; run `make params` to compose it from conf/")
     cfg = OmegaConf.load(path)
-    cfg = apply_overrides(cfg, overrides)
+    cfg = apply_overrides(cfg, select_groups(cfg, overrides))
     OmegaConf.resolve(cfg)
     check_values(OmegaConf.to_container(cfg), f"{path}{' with overrides' if overrides else ''}")
     return cfg
@@ -90,6 +109,7 @@ _POSITIVE = "a positive number"
 _COUNT = "a positive whole number"
 _NONNEG = "a number >= 0"
 _NONNEG_COUNT = "a whole number >= 0"
+_COUNT_OR_NULL = "a positive whole number, or null"
 _RULES: list[tuple[str, str]] = [
     ("*vehicle.mass", _POSITIVE), ("*vehicle.inertia", _POSITIVE), ("*vehicle.arm", _POSITIVE),
     ("*vehicle.k_f", _POSITIVE), ("*vehicle.k_m", _POSITIVE), ("*vehicle.gravity", _POSITIVE),
@@ -116,10 +136,16 @@ _RULES: list[tuple[str, str]] = [
     ("export.onnx_samples", _COUNT), ("export.onnx_tolerance", _POSITIVE),
     ("export.mcu.start", _NONNEG_COUNT), ("export.mcu.steps", _COUNT), ("export.mcu.tolerance", _POSITIVE),
     ("visualize.stride", _COUNT),
+    ("campaign.worlds", _COUNT), ("campaign.chunk", _COUNT), ("campaign.duration", _POSITIVE),
+    ("campaign.user_share", _NONNEG), ("campaign.max_effects", _NONNEG_COUNT), ("campaign.relevant", _NONNEG),
+    ("launcher.workers", _COUNT_OR_NULL), ("launcher.threads", _COUNT), ("launcher.time_min", _COUNT),
+    ("launcher.mem_gb", _POSITIVE), ("launcher.cpus_per_task", _COUNT),
 ]
 
 
 def _fits(value: object, kind: str) -> bool:
+    if kind == _COUNT_OR_NULL:
+        return value is None or _fits(value, _COUNT)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         return False
     if kind in (_COUNT, _NONNEG_COUNT) and not isinstance(value, int):

@@ -2,21 +2,37 @@
 
 These are hypotheses, not the simulator's world (that is :mod:`nanosysid.sim.world`, which
 this module never imports): discovery searches them, the augmented model adds the ones it
-names, and the export writes them out in C. Each effect is written once, as the columns of
-a linear model of the extra body wrench,
+names, and the export writes them out in C. Where the literature has several forms of one
+effect (drag linear in the body velocity, proportional to the rotor speeds times it, or
+quadratic), each form is its own entry, and discovery says when the data cannot tell them
+apart. Each effect is written once, as the columns of a linear model of the extra body wrench,
 
     ``[F_B; tau_B] = Phi(x, Omega, dOmega/dt) theta``,  ``Phi`` of shape ``(6, P)``,
 
 over component scalars (:class:`Signals`). The same function gives the regression's feature
 columns and the augmented model's batched torch wrench (:func:`features`, over tensors), and
-the generated C (:func:`wrench`, over the C generator's traced scalars). ``input_delay`` is
-the one nonlinear entry: a delay of the recorded rotor speeds, found by search.
+the generated C (:func:`wrench`, over the C generator's traced scalars).
+
+Three kinds of entry:
+
+- ``wrench``: an extra body force and torque, added to the rigid body's equations;
+- ``correction``: a correction of a nominal parameter (inertia, arm; k_F and k_M are refitted
+  with every candidate). In the regression its columns are the first-order change of the
+  residual, written with the model's own rotor torques; the augmented model applies it to the
+  vehicle. The mass is no candidate: every force the model predicts is divided by it, and the
+  accelerometer sees only force over mass, which k_F's refit already carries;
+- ``delay``: ``input_delay``, a delay of the recorded rotor speeds, found by search.
+
+Besides the named entries, :func:`entry` builds *generic terms*, ``term:<channel>:<a>*<b>``:
+one product of the physically meaningful signals of :data:`TERM_SIGNALS` on one channel,
+the vocabulary of the sparse fit that captures a disagreement no named effect explains.
 
 Rotor layout and spin directions are :mod:`nanosysid.dynamics`'.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
@@ -27,8 +43,8 @@ from nanosysid import so3
 from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, signed_sum
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["CHANNELS", "Signals", "Effect", "LIBRARY", "NOMINAL", "DELAY", "signals", "features", "wrench",
-           "split_coefficients", "entry"]
+__all__ = ["CHANNELS", "Signals", "Effect", "LIBRARY", "NOMINAL", "DELAY", "TERM_SIGNALS", "signals", "features",
+           "wrench", "split_coefficients", "entry", "term_name", "apply_corrections", "refitted_vehicle"]
 
 CHANNELS = ("F_x", "F_y", "F_z", "tau_x", "tau_y", "tau_z")
 
@@ -42,6 +58,7 @@ class Signals:
         v: Air velocity in the body frame (still air): ``R^T v`` (m/s), 3 components.
         w: Body rates (rad/s), 3.
         om: Rotor speeds (rad/s), 4; ``s`` their squares; ``om_dot`` their rates (rad/s^2).
+        z: Height (m) above the floor, the position's z.
     """
 
     v: Sequence[Any]
@@ -49,6 +66,7 @@ class Signals:
     om: Sequence[Any]
     s: Sequence[Any]
     om_dot: Sequence[Any]
+    z: Any
 
 
 Columns = Callable[[Signals, Vehicle], list[list[Any]]]
@@ -56,7 +74,7 @@ Columns = Callable[[Signals, Vehicle], list[list[Any]]]
 
 @dataclass(frozen=True)
 class Effect:
-    """One named effect of the library.
+    """One entry of the library.
 
     Attributes:
         name: The effect's name.
@@ -65,6 +83,11 @@ class Effect:
         columns: ``(Signals, vehicle) -> 6 rows of P entries`` (0.0 where a channel is untouched);
             None for the nonlinear ``input_delay``.
         touches: The benchmark quantities it acts on directly.
+        signs: Per coefficient, +1 where physics fixes its sign (a drag coefficient is positive),
+            0 where either sign is possible.
+        kind: ``"wrench"``, ``"correction"`` or ``"delay"``.
+        excited_by: The manoeuvre that shows this effect apart from others (said when the data
+            cannot tell it from another entry).
     """
 
     name: str
@@ -72,31 +95,95 @@ class Effect:
     params: tuple[str, ...]
     columns: Columns | None
     touches: tuple[str, ...]
+    signs: tuple[int, ...] = ()
+    kind: str = "wrench"
+    excited_by: str = ""
+    physical: Callable[[Sequence[float], Vehicle], list[float]] | None = None
+    # the largest share of the nominal value a correction (or a relative coefficient) may have;
+    # beyond it the fit is not correcting a parameter but soaking up something else (a
+    # disturbance the controller fights correlates with every column proportional to the rotor
+    # torque)
+    bound: float | None = None
+    # number of columns where it differs from the number of physical parameters (``physical``
+    # maps the columns' coefficients to them)
+    width: int | None = None
+
+    @property
+    def n_columns(self) -> int:
+        """Number of columns (coefficients in the regression and the augmented model)."""
+        return self.width if self.width is not None else len(self.params)
+
+    def nominal(self, vehicle: Vehicle) -> list[float]:
+        """The values :attr:`bound` is a share of: a correction's nominal values, 1 for a
+        relative coefficient."""
+        return {"inertia": list(vehicle.inertia), "arm": [vehicle.arm]}.get(self.name, [1.0] * len(self.params))
+
+    def values(self, theta: Sequence[float], vehicle: Vehicle) -> list[float]:
+        """The coefficients of the columns as the physical parameters :attr:`params` name."""
+        return [float(t) for t in theta] if self.physical is None else self.physical(theta, vehicle)
 
 
 def _zero_rows(P: int) -> list[list[Any]]:
     return [[0.0] * P for _ in range(6)]
 
 
-def _induced_drag(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    total = sg.om[0] + sg.om[1] + sg.om[2] + sg.om[3]
-    rows = _zero_rows(2)
-    rows[0][0] = -(total * sg.v[0])
-    rows[1][0] = -(total * sg.v[1])
-    rows[2][1] = -(total * sg.v[2])
+def _sum(values: Sequence[Any]) -> Any:
+    return signed_sum((1.0,) * len(values), values)
+
+
+def _drag(speed_weight: Callable[[Signals, int], Any]) -> Columns:
+    """Drag ``F = -diag(a, a, b) g(v) `` with ``g`` per axis: columns (a, b)."""
+
+    def columns(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+        rows = _zero_rows(2)
+        rows[0][0] = -speed_weight(sg, 0)
+        rows[1][0] = -speed_weight(sg, 1)
+        rows[2][1] = -speed_weight(sg, 2)
+        return rows
+
+    return columns
+
+
+def _drag_moment(weight: Callable[[Signals], Any]) -> Columns:
+    """Torque of a horizontal drag ``-D v`` acting a height ``h`` above the centre of mass:
+    ``(0, 0, h) x F = h D (v_y, -v_x, 0)``, one column, coefficient ``h D``."""
+
+    def columns(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+        k = weight(sg)
+        rows = _zero_rows(1)
+        rows[3][0] = sg.v[1] if k is None else k * sg.v[1]
+        rows[4][0] = -sg.v[0] if k is None else -(k * sg.v[0])
+        return rows
+
+    return columns
+
+
+def _rate_damping(weight: Callable[[Signals], Any]) -> Columns:
+    def columns(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+        k = weight(sg)
+        rows = _zero_rows(2)
+        rows[3][0] = -sg.w[0] if k is None else -(k * sg.w[0])
+        rows[4][0] = -sg.w[1] if k is None else -(k * sg.w[1])
+        rows[5][1] = -sg.w[2] if k is None else -(k * sg.w[2])
+        return rows
+
+    return columns
+
+
+def _inflow(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+    rows = _zero_rows(1)
+    rows[2][0] = -(vehicle.k_f * _sum(sg.s) * sg.v[2])
     return rows
 
 
-def _quadratic_drag(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    rows = _zero_rows(2)
-    rows[0][0] = -(abs(sg.v[0]) * sg.v[0])
-    rows[1][0] = -(abs(sg.v[1]) * sg.v[1])
-    rows[2][1] = -(abs(sg.v[2]) * sg.v[2])
+def _ground_effect(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+    rows = _zero_rows(1)
+    rows[2][0] = vehicle.k_f * _sum(sg.s) / (sg.z * sg.z)
     return rows
 
 
 def _cg_offset(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    thrust = vehicle.k_f * (sg.s[0] + sg.s[1] + sg.s[2] + sg.s[3])
+    thrust = vehicle.k_f * _sum(sg.s)
     rows = _zero_rows(2)
     # torque of the thrust (0, 0, T) about a centre of mass at (r_x, r_y, 0): T (-r_y, r_x, 0)
     rows[4][0] = thrust
@@ -104,16 +191,26 @@ def _cg_offset(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     return rows
 
 
+# the zero-mean patterns of four rotors' spread: roll, pitch and yaw pairs (orthogonal). The
+# common mode, every rotor off by the same share, is the refitted k_F and k_M and the arm.
+SPREAD_MODES = (ROTOR_Y, ROTOR_X, SPIN)
+
+
 def _rotor_spread(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    # rotor i with k_F (1 + d_i) and k_M (1 + d_i) adds d_i times its own column of the mixer
+    # rotor i with k_F (1 + d_i) and k_M (1 + d_i) adds d_i times its own column of the mixer;
+    # d = sum_j a_j SPREAD_MODES[j], one column per mode
     kl = vehicle.k_f * vehicle.arm
-    rows = _zero_rows(4)
-    for i in range(4):
-        rows[2][i] = vehicle.k_f * sg.s[i]
-        rows[3][i] = (kl * ROTOR_Y[i]) * sg.s[i]
-        rows[4][i] = (-kl * ROTOR_X[i]) * sg.s[i]
-        rows[5][i] = (-vehicle.k_m * SPIN[i]) * sg.s[i]
+    per_rotor = [[vehicle.k_f * sg.s[i] for i in range(4)], [(kl * ROTOR_Y[i]) * sg.s[i] for i in range(4)],
+                 [(-kl * ROTOR_X[i]) * sg.s[i] for i in range(4)], [(-vehicle.k_m * SPIN[i]) * sg.s[i] for i in range(4)]]
+    rows = _zero_rows(3)
+    for j, mode in enumerate(SPREAD_MODES):
+        for r, row in zip((2, 3, 4, 5), per_rotor):
+            rows[r][j] = signed_sum(mode, row)
     return rows
+
+
+def _spread_values(theta: Sequence[float], vehicle: Vehicle) -> list[float]:
+    return [float(sum(a * m[i] for a, m in zip(theta, SPREAD_MODES))) for i in range(4)]
 
 
 def _rotor_gyro(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
@@ -127,42 +224,163 @@ def _rotor_gyro(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
 
 
 def _nominal(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
-    """Corrections of the nominal coefficients: k_F (thrust and roll/pitch torque) and k_M."""
-    L = vehicle.arm
+    """Corrections of the nominal coefficients: k_F on the thrust and k_M on the yaw torque. The
+    roll/pitch torques' scale k_F L is the ``arm`` correction's: refitted with the thrust, a
+    disturbance torque the controller fights would bend k_F away from what the thrust says."""
     rows = _zero_rows(2)
-    rows[2][0] = sg.s[0] + sg.s[1] + sg.s[2] + sg.s[3]
-    rows[3][0] = L * signed_sum(ROTOR_Y, sg.s)
-    rows[4][0] = L * signed_sum([-x for x in ROTOR_X], sg.s)
+    rows[2][0] = _sum(sg.s)
     rows[5][1] = signed_sum([-s for s in SPIN], sg.s)
     return rows
 
 
-NOMINAL = Effect("nominal", "the quadratic rotor model's own coefficients, refitted alongside",
-                 ("dk_F [N s²/rad²]", "dk_M [N m s²/rad²]"), _nominal, ("p", "v", "R", "w"))
+def _inertia(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+    # the measured torque is J dw/dt + w x Jw with the nominal J; with the true J + dJ the rotors'
+    # torque tau gives dw/dt = (J + dJ)^-1 (tau - w x (J + dJ) w). To first order in dJ the
+    # residual is -dJ_k a_k e_k - w x (dJ_k w_k e_k) per axis k, a = J^-1 (tau - w x Jw) the
+    # angular acceleration the nominal model predicts (never the measured one, which would let
+    # the fit copy the measurement)
+    J = vehicle.inertia
+    kl = vehicle.k_f * vehicle.arm
+    w = sg.w
+    gyro = (w[1] * (J[2] * w[2]) - w[2] * (J[1] * w[1]), w[2] * (J[0] * w[0]) - w[0] * (J[2] * w[2]),
+            w[0] * (J[1] * w[1]) - w[1] * (J[0] * w[0]))
+    tau = (kl * signed_sum(ROTOR_Y, sg.s), kl * signed_sum([-x for x in ROTOR_X], sg.s),
+           vehicle.k_m * signed_sum([-c for c in SPIN], sg.s))
+    a = [(tau[k] - gyro[k]) * (1.0 / J[k]) for k in range(3)]
+    rows = _zero_rows(3)
+    # w x (w_k e_k): k = x -> (0, w_z w_x, -w_y w_x); y -> (-w_z w_y, 0, w_x w_y); z -> (w_y w_z, -w_x w_z, 0)
+    rows[3][0], rows[4][0], rows[5][0] = -a[0], -(w[2] * w[0]), w[1] * w[0]
+    rows[3][1], rows[4][1], rows[5][1] = w[2] * w[1], -a[1], -(w[0] * w[1])
+    rows[3][2], rows[4][2], rows[5][2] = -(w[1] * w[2]), w[0] * w[2], -a[2]
+    return rows
+
+
+def _arm(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+    rows = _zero_rows(1)
+    rows[3][0] = vehicle.k_f * signed_sum(ROTOR_Y, sg.s)
+    rows[4][0] = vehicle.k_f * signed_sum([-x for x in ROTOR_X], sg.s)
+    return rows
+
+
+NOMINAL = Effect("nominal", "the quadratic rotor model's thrust and yaw coefficients, refitted alongside",
+                 ("dk_F [N s²/rad²]", "dk_M [N m s²/rad²]"), _nominal, ("p", "v", "R", "w"), (0, 0))
 
 DELAY = Effect("input_delay", "the recorded rotor speeds lag the true ones by a delay (telemetry over a radio link)",
-               ("delay [s]",), None, ("p", "v", "R", "w"))
+               ("delay [s]",), None, ("p", "v", "R", "w"), (1,), "delay",
+               "quick throttle steps: the response leads the recorded rotor speeds")
+
+_SUM_OM = lambda sg, *_: _sum(sg.om)  # noqa: E731
 
 LIBRARY: dict[str, Effect] = {e.name: e for e in (
+    Effect("linear_drag", "rotor drag linear in the body velocity: F_B = -diag(D_xy, D_xy, D_z) v_B "
+           "(Faessler, Franchi, Scaramuzza 2018)", ("D_xy [kg/s]", "D_z [kg/s]"),
+           _drag(lambda sg, i: sg.v[i]), ("p", "v"), (1, 1),
+           excited_by="flight at one speed and several throttles (the drag of this form does not change with them)"),
     Effect("induced_drag", "blade flapping and induced drag, linear in the rotor speeds and the body velocity: "
            "F_B = -(Σ Ω_i) diag(K_xy, K_xy, K_z) v_B (Förster's Crazyflie 2 identification)",
-           ("K_xy [kg/rad]", "K_z [kg/rad]"), _induced_drag, ("p", "v")),
+           ("K_xy [kg/rad]", "K_z [kg/rad]"), _drag(lambda sg, i: _sum(sg.om) * sg.v[i]), ("p", "v"), (1, 1),
+           excited_by="flight at one speed and several throttles (climbing and descending turns)"),
     Effect("quadratic_drag", "quadratic airframe drag: F_B = -diag(c_xy, c_xy, c_z) |v_B| v_B",
-           ("c_xy [kg/m]", "c_z [kg/m]"), _quadratic_drag, ("p", "v")),
+           ("c_xy [kg/m]", "c_z [kg/m]"), _drag(lambda sg, i: abs(sg.v[i]) * sg.v[i]), ("p", "v"), (1, 1),
+           excited_by="flight at several speeds: slow and fast passes of the same path"),
+    Effect("inflow_thrust_loss", "thrust falling with the rotors' axial inflow (momentum theory, linearised): "
+           "F_z = -k_v T v_z, T = k_F Σ Ω_i² (Hoffmann et al. 2007)", ("k_v [s/m]",), _inflow, ("p", "v"), (1,),
+           excited_by="climbs and descents at several throttles"),
+    Effect("ground_effect", "thrust rising near the floor (Cheeseman and Bennett): F_z = c T / z², "
+           "c = (rotor radius / 4)²", ("c [m²]",), _ground_effect, ("p", "v"), (1,),
+           excited_by="hover at several heights below a few rotor diameters"),
+    Effect("drag_moment", "horizontal drag acting above or below the centre of mass: "
+           "tau = h D (v_y, -v_x, 0) (the airframe's centre of pressure)", ("hD [kg m/s]",),
+           _drag_moment(lambda sg: None), ("R", "w"), (0,),
+           excited_by="fast straight passes at several throttles"),
+    Effect("induced_drag_moment", "rotor drag acting at the rotor plane, off the centre of mass: "
+           "tau = e (Σ Ω_i) (v_y, -v_x, 0) (Förster's drag at the hub height)", ("e [kg m/rad]",),
+           _drag_moment(lambda sg: _sum(sg.om)), ("R", "w"), (0,),
+           excited_by="fast straight passes at several throttles"),
+    Effect("rate_damping", "aerodynamic damping of the body rates: tau = -diag(b_xy, b_xy, b_z) ω",
+           ("b_xy [N m s]", "b_z [N m s]"), _rate_damping(lambda sg: None), ("R", "w"), (1, 1),
+           excited_by="fast roll, pitch and yaw rates at several throttles"),
+    Effect("induced_rate_damping", "rate damping from blade flapping, growing with the rotor speeds: "
+           "tau = -(Σ Ω_i) diag(b_xy, b_xy, b_z) ω", ("b_xy [kg m² /rad]", "b_z [kg m² /rad]"),
+           _rate_damping(_SUM_OM), ("R", "w"), (1, 1),
+           excited_by="fast body rates at several throttles"),
     DELAY,
     Effect("cg_offset", "centre of gravity at (r_x, r_y) off the rotors' centre: the thrust torques roll and pitch, "
-           "tau = T (-r_y, r_x, 0)", ("r_x [m]", "r_y [m]"), _cg_offset, ("R", "w")),
-    Effect("rotor_spread", "rotors of unequal coefficients k_F (1 + d_i), k_M (1 + d_i) (manufacturing spread, wear)",
-           ("d_1 [-]", "d_2 [-]", "d_3 [-]", "d_4 [-]"), _rotor_spread, ("p", "v", "R", "w")),
+           "tau = T (-r_y, r_x, 0)", ("r_x [m]", "r_y [m]"), _cg_offset, ("R", "w"), (0, 0),
+           excited_by="throttle steps at level attitude: the torque follows the collective thrust"),
+    Effect("rotor_spread", "rotors of unequal coefficients k_F (1 + d_i), k_M (1 + d_i) (manufacturing spread, wear); "
+           "the d_i average zero (their mean is in the refitted k_F and k_M)",
+           ("d_1 [-]", "d_2 [-]", "d_3 [-]", "d_4 [-]"), _rotor_spread, ("p", "v", "R", "w"), (0, 0, 0),
+           excited_by="yaw manoeuvres, which spin the two rotor pairs at different speeds",
+           physical=_spread_values, bound=0.25, width=3),
     Effect("rotor_gyro", "rotor inertia J_r: gyroscopic torque -ω × (0, 0, J_r Σ s_i Ω_i) and yaw reaction "
-           "-J_r Σ s_i dΩ_i/dt", ("J_r [kg m²]",), _rotor_gyro, ("R", "w")),
+           "-J_r Σ s_i dΩ_i/dt", ("J_r [kg m²]",), _rotor_gyro, ("R", "w"), (1,),
+           excited_by="quick yaw-rate changes and roll/pitch rates during yaw"),
+    Effect("inertia", "the body's inertia off its nominal diagonal: J + diag(dJ)",
+           ("dJ_x [kg m²]", "dJ_y [kg m²]", "dJ_z [kg m²]"), _inertia, ("R", "w"), (0, 0, 0), "correction",
+           "roll and pitch rates during fast yaw: only the inertia has the gyroscopic w x J w",
+           # the acceleration column's coefficient is dJ J / (J + dJ): the true body turns J / (J + dJ)
+           # as fast as the nominal model says
+           lambda th, vh: [float(c * j / (j - c)) for c, j in zip(th, vh.inertia)],
+           # published values for this airframe class lie up to 83 % above the nominal (yaw)
+           1.0),
+    Effect("arm", "the rotors' lever arm off its nominal value: L + dL", ("dL [m]",), _arm, ("R", "w"), (0,),
+           "correction", "roll/pitch torque without angular acceleration (holding a tilt against a wind)", None,
+           # the arm is geometry, measured to a few millimetres (the centre of each rotor's thrust)
+           0.1),
 )}
+
+# Physically meaningful signals of the generic terms: name -> (unit, extractor). The rotor-speed
+# sum is left out: over a flight it moves with the thrust almost in proportion, and the sparse
+# fit cannot choose between nearly collinear terms.
+TERM_SIGNALS: dict[str, tuple[str, Callable[[Signals, Vehicle], Any]]] = {
+    "v_x": ("m/s", lambda sg, vh: sg.v[0]), "v_y": ("m/s", lambda sg, vh: sg.v[1]),
+    "v_z": ("m/s", lambda sg, vh: sg.v[2]),
+    "w_x": ("rad/s", lambda sg, vh: sg.w[0]), "w_y": ("rad/s", lambda sg, vh: sg.w[1]),
+    "w_z": ("rad/s", lambda sg, vh: sg.w[2]),
+    "T": ("N", lambda sg, vh: vh.k_f * _sum(sg.s)),
+    "z": ("m", lambda sg, vh: sg.z),
+}
+TERM_PREFIX = "term"
+
+
+def term_name(channel: str, product: str) -> str:
+    """The library name of a generic term: ``term:<channel>:<product>``."""
+    return f"{TERM_PREFIX}:{channel}:{product}"
+
+
+def _term(name: str) -> Effect:
+    try:
+        _, channel, product = name.split(":")
+        c = CHANNELS.index(channel)
+        factors = [] if product == "1" else product.split("*")
+        for f in factors:
+            TERM_SIGNALS[f]
+    except (ValueError, KeyError):
+        raise KeyError(f"no effect {name!r}: a generic term is term:<channel>:<signal>[*<signal>...], channels "
+                       f"{', '.join(CHANNELS)}, signals {', '.join(TERM_SIGNALS)}") from None
+
+    def columns(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+        value: Any = 1.0
+        for f in factors:
+            x = TERM_SIGNALS[f][1](sg, vehicle)
+            value = x if isinstance(value, float) and value == 1.0 else value * x
+        rows = _zero_rows(1)
+        rows[c][0] = value
+        return rows
+
+    unit = "N" if c < 3 else "N m"
+    per = "·".join(TERM_SIGNALS[f][0] for f in factors)
+    return Effect(name, f"generic term {product} on {channel}", (f"coef [{unit}{' / (' + per + ')' if per else ''}]",),
+                  columns, ("p", "v") if c < 3 else ("R", "w"))
 
 
 def entry(name: str) -> Effect:
-    """The library entry (or :data:`NOMINAL`) called ``name``."""
+    """The library entry (or :data:`NOMINAL`, or a generic term) called ``name``."""
     if name == NOMINAL.name:
         return NOMINAL
+    if name.startswith(TERM_PREFIX + ":"):
+        return _term(name)
     try:
         return LIBRARY[name]
     except KeyError:
@@ -173,7 +391,7 @@ def signals(x: Tensor, om: Tensor, om_dot: Tensor) -> Signals:
     """The components of batched state ``(..., 13)``, rotor speeds and rates ``(..., 4)``."""
     v_b = so3.quat_rotate(so3.quat_conj(x[..., 6:10]), x[..., 3:6])
     return Signals(v=v_b.unbind(-1), w=x[..., 10:13].unbind(-1), om=om.unbind(-1), s=(om * om).unbind(-1),
-                   om_dot=om_dot.unbind(-1))
+                   om_dot=om_dot.unbind(-1), z=x[..., 2])
 
 
 def features(names: Sequence[str], x: Tensor, om: Tensor, om_dot: Tensor, vehicle: Vehicle) -> Tensor:
@@ -202,11 +420,32 @@ def wrench(name: str, theta: Sequence[float], sg: Signals, vehicle: Vehicle) -> 
     return out[:3], out[3:]
 
 
+def refitted_vehicle(vehicle: Vehicle, dk_f: float, dk_m: float, corrections: dict[str, Sequence[float]]) -> Vehicle:
+    """The vehicle with the refitted k_F (thrust) and k_M and the corrections applied; the arm is
+    scaled so that the roll/pitch torques' k_F L is what the ``arm`` correction (if any) says."""
+    v = apply_corrections(vehicle, corrections)
+    k_f = vehicle.k_f + dk_f
+    return dataclasses.replace(v, k_f=k_f, k_m=vehicle.k_m + dk_m, arm=v.arm * vehicle.k_f / k_f)
+
+
+def apply_corrections(vehicle: Vehicle, corrections: dict[str, Sequence[float]]) -> Vehicle:
+    """The vehicle with the named parameter corrections (``inertia``, ``arm``) added."""
+    kw: dict[str, Any] = {}
+    for name, theta in corrections.items():
+        if name == "inertia":
+            kw["inertia"] = tuple(j + float(d) for j, d in zip(vehicle.inertia, theta))
+        elif name == "arm":
+            kw["arm"] = vehicle.arm + float(theta[0])
+        else:
+            raise KeyError(f"{name!r} is not a parameter correction")
+    return dataclasses.replace(vehicle, **kw)
+
+
 def split_coefficients(names: Sequence[str], theta: Sequence[float]) -> dict[str, list[float]]:
     """A coefficient vector laid out as :func:`features` lays out its columns, per effect."""
     out, k = {}, 0
     for name in names:
-        n = len(entry(name).params)
+        n = entry(name).n_columns
         out[name] = [float(t) for t in theta[k:k + n]]
         k += n
     if k != len(theta):

@@ -1,22 +1,50 @@
-"""Model-discrepancy discovery: where the nominal physics and the measurements disagree, which
-named physical effect explains it, and the nominal model with that effect added.
+"""Model-discrepancy discovery: where the nominal physics and the measurements disagree, and
+for every disagreement that stands above the noise a verdict: which named physical effect
+explains it, that the data cannot tell two named effects apart, or that no named effect does
+(and then a sparse fit of generic terms that captures it).
 
 Example::
 
     from nanosysid import discover
-    result = discover.run(train_flights, test_flights)
-    [(f.name, f.params) for f in result.found]     # the effects named, most important first
-    result.before.simerr, result.after.simerr      # nominal and augmented model on test_flights
-    result.model                                   # the augmented predictor (physics+<effects>)
+    res = discover.run(train_flights, test_flights)
+    for f in res.findings:              # most important first
+        f.verdict, f.name, f.alternatives, f.channels, f.params, f.evidence["ci"]
+    res.found                           # the "named" findings
+    res.before.simerr, res.after.simerr # nominal and augmented model on test_flights
+    res.model                           # the augmented predictor
 
-The nominal model is ``physics_full`` (rigid body with the torque equation) with k_F and k_M
-as the identify stage found them on the training flights (identified here when no vehicle is
-given). The candidates are the library of :mod:`nanosysid.effects` (knowledge from the
-literature); this package never imports the simulator's world. Effects are chosen by forward selection: each round, every
-candidate not yet chosen is fitted together with those chosen, leaving one training flight out
-at a time; the one that lowers the held-out residual most is named if that gain is at least
-``threshold`` of the nominal residual and it helps on most held-out flights. The rounds stop
-when no candidate clears the bar.
+**The nominal model** is ``physics_full`` (rigid body with the torque equation) with k_F and k_M as
+the identify stage found them on the training flights (identified here when no vehicle is
+given); k_F and k_M are refitted alongside every candidate. **The candidates** are the library of
+:mod:`nanosysid.effects` (knowledge from the literature, several forms of one effect where the
+literature has several, and corrections of the nominal mass, inertia and arm); this package
+never imports the simulator's world.
+
+**The rule.** Residuals are weighted by their noise floor (:func:`~nanosysid.discover.fit.noise_floor`,
+estimated from the measurements), cut into blocks of ``block`` seconds and dealt to ``folds`` folds;
+every score is held out (:mod:`nanosysid.discover.fit`). Forward selection: each round, every
+candidate not yet chosen is added to the chosen ones, and its held-out gain is measured block by
+block. Under the null hypothesis that it explains nothing, a block's gain is as likely negative as
+positive: the one-sided Wilcoxon signed-rank test over the blocks (a sign-flip test on ranks, so a
+few violent blocks neither make nor break it) gives a p-value, multiplied by the number of
+candidates tried in the round (Bonferroni). A candidate is *eligible* when that p-value is below
+``alpha``, its size (the root of its held-out gain per sample, in noise floors) is at least
+``floor`` (smaller than a quarter of the noise, an effect moves no benchmark figure), and no
+coefficient with a physical sign (a drag coefficient, a rotor inertia) comes out negative by more
+than two standard errors. The eligible candidate with the largest gain is
+chosen. Candidates it is not significantly better than (the same paired sign-flip test on the
+difference of their held-out errors, at ``alpha``) are its *alternatives*: if none of them is chosen
+later, the finding is **ambiguous**, otherwise **named**. The delay of the recorded rotor speeds
+is a search over a grid, nested inside the folds: each fold chooses its delay on the other folds.
+
+A chosen entry is kept only if it explains at least ``share`` of what a generic sparse fit
+(:mod:`nanosysid.discover.generic`) captures of the same disagreement (its held-out gain without
+it, on its own channels): an entry that only correlates with an effect outside the library is
+not named. What remains after the chosen entries is tested channel by channel with the generic
+fit (the same sign-flip test, Bonferroni over the six channels): a channel where it captures
+significantly more than nothing is an **unnamed** finding, and its sparse terms join the
+augmented model. Anything that does not pass these tests is below the noise floor and is not a
+finding.
 """
 
 from __future__ import annotations
@@ -27,71 +55,136 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
+from scipy.stats import norm, wilcoxon
 
 from nanosysid import benchmark
 from nanosysid.dataio import Flight
-from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, Effect, split_coefficients
-from nanosysid.errors import DataError
-from nanosysid.discover.fit import Fitter, FlightData, flight_data, measured_wrench
+from nanosysid.discover import generic
+from nanosysid.discover.fit import COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench, noise_floor
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
+from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, refitted_vehicle, split_coefficients
+from nanosysid.errors import DataError, PredictionError
+from nanosysid.metrics import QUANTITIES
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["run", "Finding", "DiscoveryResult", "LIBRARY", "CHANNELS"]
+__all__ = ["run", "Finding", "DiscoveryResult", "LIBRARY", "CHANNELS", "VERDICTS"]
+
+VERDICTS = ("named", "ambiguous", "unnamed")
 
 
 @dataclass
 class Finding:
-    """A named effect with its fitted coefficients and the evidence for it.
+    """One disagreement above the noise floor and its verdict.
 
     Attributes:
-        name: The library effect's name.
-        params: Coefficient name (with unit) -> fitted value, in the effect's parametrisation.
-        evidence: ``explained_share`` (of the nominal residual's weighted sum of squares, on the
-            training flights), ``heldout_gain`` (the same, held out: fitted without the flight
-            it is measured on), ``folds_improved`` / ``folds``, ``stderr`` (jackknife over the
-            training flights, per coefficient), ``round``.
+        verdict: ``"named"``, ``"ambiguous"`` or ``"unnamed"``.
+        name: The library entry named (verdict ``"named"``), else None.
+        alternatives: Verdict ``"ambiguous"``: the entries that explain it equally well, the one
+            the augmented model uses first.
+        channels: The body-wrench channels it acts on (of :data:`CHANNELS`).
+        params: Coefficient name (with unit) -> fitted value: of the entry (named), of the entry
+            the augmented model uses (ambiguous), of the generic terms kept (unnamed).
+        evidence: ``heldout_gain`` (share of the nominal residual's weighted sum of squares,
+            held out), ``z``, ``p`` (Bonferroni-adjusted), ``blocks_improved`` / ``blocks``,
+            ``stderr`` and ``ci`` (95 %, jackknife over the folds) per coefficient,
+            ``stability`` (share of the folds' refits that prefer it to every other candidate of
+            its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
+            ``band``, and ``added`` False where its terms would make the training rollouts
+            diverge (they are then left out of the augmented model).
     """
 
-    name: str
+    verdict: str
+    name: str | None
+    channels: tuple[str, ...]
     params: dict[str, float]
     evidence: dict[str, Any]
+    alternatives: tuple[str, ...] = ()
+
+    @property
+    def entry(self) -> str | None:
+        """The library entry the augmented model uses for it (None: generic terms)."""
+        return self.name or (self.alternatives[0] if self.alternatives else None)
 
     @property
     def touches(self) -> tuple[str, ...]:
-        return LIBRARY[self.name].touches
+        if self.entry is not None:
+            return LIBRARY[self.entry].touches
+        return tuple(dict.fromkeys(q for c in self.channels for q in (("p", "v") if c.startswith("F") else ("R", "w"))))
 
 
 @dataclass
 class DiscoveryResult:
     """What :func:`run` found, and the benchmark scores on the test flights."""
 
-    found: list[Finding]
+    findings: list[Finding]
     before: benchmark.Scores
     after: benchmark.Scores
     model: AugmentedPredictor
     nominal: AugmentedPredictor
     vehicle: Vehicle
     rounds: list[list[dict[str, Any]]]
-    threshold: float
+    alpha: float
+    floor: float
+    noise: np.ndarray
     oracle: benchmark.Scores | None = None
+    sindy: dict[str, Any] | None = None
     analysis: dict[str, Any] = field(default_factory=dict)
 
     @property
+    def found(self) -> list[Finding]:
+        """The findings with verdict ``"named"``."""
+        return [f for f in self.findings if f.verdict == "named"]
+
+    @property
     def name(self) -> str:
-        return "+".join(["physics"] + [f.name for f in self.found])
+        parts = [f.entry for f in self.findings if f.entry] + (["terms"] if self.unnamed else [])
+        return "+".join(["physics"] + parts)
+
+    @property
+    def unnamed(self) -> list[Finding]:
+        return [f for f in self.findings if f.verdict == "unnamed"]
+
+
+def _pvalue(g: np.ndarray) -> tuple[float, float]:
+    """One-sided Wilcoxon signed-rank test that the per-block gains ``g`` lean positive: the
+    equivalent normal ``z`` and p."""
+    g = g[g != 0]
+    if len(g) < 2:
+        return 0.0, 1.0
+    p = float(wilcoxon(g, alternative="greater").pvalue)
+    return float(norm.isf(p)), p
+
+
+def _jackknife(thetas: np.ndarray) -> np.ndarray:
+    n = len(thetas)
+    return np.sqrt((n - 1) / n * ((thetas - thetas.mean(axis=0)) ** 2).sum(axis=0))
 
 
 class _Search:
-    """Regression data per delay, built once and shared by every round."""
+    """Regression data and block normal equations per delay, built once and shared by every round."""
 
-    def __init__(self, flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int) -> None:
+    def __init__(self, flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int, block: float,
+                 folds: int) -> None:
         self.flights, self.vehicle, self.window, self.order = list(flights), vehicle, window, order
         self.measured = [measured_wrench(f, vehicle, window, order) for f in self.flights]
+        self.noise = noise_floor(self.flights, vehicle, window, order)
+        self.weights = 1.0 / np.maximum(self.noise, 1e-12)
         self._data: dict[float, list[FlightData]] = {}
-        r0 = np.concatenate([d.r for d in self.data(0.0)])
-        # channels in units of their own spread, so force (N) and torque (N m) weigh alike
-        self.weights = 1.0 / np.maximum(r0.std(axis=0), 1e-12)
-        self.total = Fitter(self.data(0.0), self.weights).nominal_sse()
+        self._grams: dict[float, Grams] = {}
+        self._terms: dict[float, tuple[generic.TermLibrary, np.ndarray]] = {}
+        dt = float(np.median(np.diff(self.flights[0].t)))
+        self.blocks = block_ids(self.data(0.0), max(1, int(round(block / dt))))
+        n_blocks = int(self.blocks.max()) + 1
+        if n_blocks < 4:
+            raise DataError(f"discover: the training flights make {n_blocks} blocks of {block:g} s; at least 4 are "
+                            "needed to hold some out (give longer flights or a shorter discover.block)")
+        self.folds = min(folds, n_blocks // 2)  # short data: fewer, larger folds
+        self.offsets = {}
+        k = 0
+        for name in COLUMN_ENTRIES:
+            P = entry(name).n_columns
+            self.offsets[name] = np.arange(k, k + P)
+            k += P
 
     def data(self, delay: float) -> list[FlightData]:
         key = round(float(delay), 6)
@@ -100,151 +193,364 @@ class _Search:
                                for f, m in zip(self.flights, self.measured)]
         return self._data[key]
 
-    def fitter(self, delay: float) -> Fitter:
-        return Fitter(self.data(delay), self.weights)
+    def grams(self, delay: float) -> Grams:
+        key = round(float(delay), 6)
+        if key not in self._grams:
+            d = self.data(key)
+            X = np.concatenate([np.concatenate([fd.features[n] for n in COLUMN_ENTRIES], axis=-1) for fd in d])
+            y = np.concatenate([fd.r for fd in d])
+            self._grams[key] = Grams(X, y, self.weights, self.blocks, self.folds)
+        return self._grams[key]
+
+    def terms(self, delay: float) -> tuple[generic.TermLibrary, np.ndarray]:
+        """The generic terms' library and their values on every sample ``(N, M)``."""
+        key = round(float(delay), 6)
+        if key not in self._terms:
+            signals = np.concatenate([fd.terms for fd in self.data(key)])
+            lib = generic.TermLibrary(signals)
+            self._terms[key] = (lib, lib(signals))
+        return self._terms[key]
+
+    def touched(self, name: str) -> set[int]:
+        """The channels an entry's columns act on."""
+        if name == DELAY.name:
+            return set(range(6))
+        f = self.data(0.0)[0].features[name]
+        return set(np.flatnonzero(np.any(f != 0, axis=(0, 2))).tolist())
+
+    def cols(self, names: Sequence[str]) -> np.ndarray:
+        return np.concatenate([self.offsets[n] for n in [NOMINAL.name, *names]])
+
+    def residual(self, names: Sequence[str], delay: float) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted residual left by ``names`` fitted on every block ``(N, 6)``, and the coefficients."""
+        g = self.grams(delay)
+        cols = self.cols(names)
+        theta = g.solve(cols)
+        d = self.data(delay)
+        X = np.concatenate([np.concatenate([fd.features[n] for n in [NOMINAL.name, *names]], axis=-1) for fd in d])
+        y = np.concatenate([fd.r for fd in d])
+        return (y - X @ theta) * self.weights, theta
+
+    def nested_delay(self, names: Sequence[str], delays: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+        """Held-out SSE per block with the delay chosen on the other folds, and each fold's delay."""
+        cols = self.cols(names)
+        fits = {d: self.grams(d) for d in delays}
+        out, chosen = np.zeros(int(self.blocks.max()) + 1), np.zeros(self.folds)
+        for k in range(self.folds):
+            train = np.flatnonzero(fits[delays[0]].fold != k)
+            test = np.flatnonzero(fits[delays[0]].fold == k)
+            best, best_sse, best_theta = None, np.inf, None
+            for d, g in fits.items():
+                th = g.solve(cols, train)
+                s = g.sse(cols, th, train).sum()
+                if s < best_sse:
+                    best, best_sse, best_theta = d, s, th
+            chosen[k] = best
+            out[test] = fits[best].sse(cols, best_theta, test)
+        return out, chosen
 
 
-def _names(linear: list[str]) -> list[str]:
-    return [NOMINAL.name] + linear
-
-
-def _jackknife(thetas: np.ndarray) -> np.ndarray:
-    n = len(thetas)
-    return np.sqrt((n - 1) / n * ((thetas - thetas.mean(axis=0)) ** 2).sum(axis=0))
-
-
-def _params(c: Effect, values: Sequence[float]) -> dict[str, float]:
-    return {p: float(v) for p, v in zip(c.params, values)}
+def _channels_of(search: _Search, name: str, theta: np.ndarray, delay: float) -> tuple[str, ...]:
+    """Channels where an entry's fitted wrench carries at least a fifth of its largest (in noise units)."""
+    X = np.concatenate([fd.features[name] for fd in search.data(delay)])
+    w = (X @ theta) * search.weights
+    rms = np.sqrt((w ** 2).mean(axis=0))
+    if rms.max() <= 0:
+        return ()
+    return tuple(CHANNELS[c] for c in np.flatnonzero(rms >= 0.2 * rms.max()))
 
 
 def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehicle: Vehicle | None = None,
-        threshold: float = 0.005, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005), window: int = 15,
-        order: int = 3, horizon: int = 50, oracle: Any = None, analysis: bool = True,
-        batch_size: int = 8192) -> DiscoveryResult:
-    """Find, name and add the effects the nominal model misses.
+        alpha: float = 0.01, floor: float = 0.25, share: float = 0.5, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005),
+        window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
+        oracle: Any = None, analysis: bool = True, sindy: bool = False, batch_size: int = 8192) -> DiscoveryResult:
+    """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
 
     Args:
-        train_flights: Flights the effects are fitted on (and held out from, one at a time).
+        train_flights: Flights the effects are fitted and tested on.
         test_flights: Flights the nominal and augmented models are scored on.
         vehicle: Nominal parameters, k_F and k_M as identified (the identify stage's
             ``params.json``, :func:`nanosysid.identify.load_params`); None: the paper's vehicle
             with k_F and k_M identified on ``train_flights``.
-        threshold: Held-out gain (share of the nominal residual) an effect must reach.
-        delays: Delays (s) searched for ``telemetry_delay``.
+        alpha: Family-wise error rate of each test (see the module's docstring).
+        floor: Size a finding needs, in noise floors: the root of its held-out gain per sample.
+        share: Share of the generic fit's held-out gain a chosen entry must reach to be kept.
+        delays: Delays (s) searched for ``input_delay`` (0 is always tried).
         window, order: Savitzky-Golay window and order of the derivatives and smoothing.
+        block: Block length (s); folds: number of folds the blocks are dealt to.
         horizon: Benchmark horizon.
         oracle: A predictor with the true dynamics (simulated data), scored for reference.
         analysis: Also compute where the models disagree (per channel, regime, band, rollout).
+        sindy: Also fit and score the plain SINDy discrepancy model (generic terms only, no names).
     """
     from nanosysid.identify import identify
 
-    if len(train_flights) < 2:
-        raise DataError(f"discover needs at least 2 training flights to hold each one out, got {len(train_flights)}")
+    if len(train_flights) < 1:
+        raise DataError("discover needs at least 1 training flight")
     v = vehicle
     if v is None:
         thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)
         v = dataclasses.replace(Vehicle(), k_f=thrust.coef, k_m=yaw.coef)
-    search = _Search(train_flights, v, window, order)
-    n = len(train_flights)
-    need = math.ceil(2 * n / 3)
+    search = _Search(train_flights, v, window, order, block, folds)
+    delays = tuple(float(d) for d in delays)
+    total = float(search.grams(0.0).et.sum())
+    n_samples = len(search.blocks)
 
-    linear: list[str] = []
+    chosen: list[str] = []
     delay = 0.0
-    current, _ = search.fitter(0.0).cv(_names(linear))
-    found: list[Finding] = []
+    current, _ = search.grams(0.0).heldout(search.cols(chosen))
     rounds: list[list[dict[str, Any]]] = []
+    picks: list[dict[str, Any]] = []
     while True:
-        options = []
+        options: dict[str, dict[str, Any]] = {}
+        g = search.grams(delay)
         for name, c in LIBRARY.items():
-            if name in linear or c is DELAY:
+            if name in chosen or c is DELAY:
                 continue
-            sse, thetas = search.fitter(delay).cv(_names(linear + [name]))
-            options.append((name, delay, sse, thetas))
-        if delay == 0.0:
-            cv = {d: search.fitter(d).cv(_names(linear)) for d in delays}
-            best = min(cv, key=lambda d: cv[d][0].sum())
-            options.append((DELAY.name, best, cv[best][0], cv[best][1]))
+            sse, thetas = g.heldout(search.cols(chosen + [name]))
+            options[name] = {"sse": sse, "thetas": thetas, "delay": delay}
+        if delay == 0.0 and delays:
+            sse, per_fold = search.nested_delay(chosen, (0.0,) + delays)
+            options[DELAY.name] = {"sse": sse, "thetas": per_fold[:, None], "delay": None}
+        K = len(options)
         table = []
-        for name, d, sse, _ in options:
-            table.append({"candidate": name, "heldout_gain": float((current.sum() - sse.sum()) / search.total),
-                          "folds_improved": int((sse < current).sum()), "folds": n,
-                          **({"delay": float(d)} if name == DELAY.name else {})})
+        for name, o in options.items():
+            gains = current - o["sse"]
+            z, p = _pvalue(gains)
+            size = float(np.sqrt(max(gains.sum(), 0.0) / n_samples))
+            o.update(gains=gains, z=z, p=min(1.0, p * K), size=size, sign_ok=_signs_ok(name, o["thetas"], search, chosen))
+            o["eligible"] = o["p"] <= alpha and size >= floor and o["sign_ok"]
+            table.append({"candidate": name, "heldout_gain": float(gains.sum() / total), "size": size, "z": z, "p": o["p"],
+                          "blocks_improved": int((gains > 0).sum()), "blocks": int(len(gains)),
+                          "plausible": bool(o["sign_ok"]), "eligible": bool(o["eligible"])})
         table.sort(key=lambda r: -r["heldout_gain"])
         rounds.append(table)
-        top = table[0] if table else None
-        if top is None or top["heldout_gain"] < threshold or top["folds_improved"] < need:
+        eligible = [n for n, o in options.items() if o["eligible"]]
+        if not eligible:
             break
-        name, d, sse, _ = next(o for o in options if o[0] == top["candidate"])
-        if name == DELAY.name:
-            delay = d
+        best = max(eligible, key=lambda n: options[n]["gains"].sum())
+        # the alternatives: eligible entries acting on the same channels that do not explain
+        # significantly less (the delay acts on every channel, through the rotor speeds)
+        mine = search.touched(best)
+        alts = [n for n in eligible if n != best and search.touched(n) & mine
+                and _pvalue(options[n]["sse"] - options[best]["sse"])[1] > alpha]
+        o = options[best]
+        picks.append({"name": best, "round": len(rounds), "alternatives": alts, "heldout_gain": float(o["gains"].sum() / total),
+                      "size": o["size"], "z": o["z"], "p": o["p"], "blocks_improved": int((o["gains"] > 0).sum()),
+                      "blocks": int(len(o["gains"])),
+                      "competitors": [n for n, x in options.items() if n != best and x["gains"].sum() > 0]})
+        if best == DELAY.name:
+            delay = _best_delay(search, chosen, (0.0,) + delays)
+            current, _ = search.grams(delay).heldout(search.cols(chosen))
         else:
-            linear.append(name)
-        current = sse
-        found.append(Finding(name, {}, {"round": len(rounds), "heldout_gain": top["heldout_gain"],
-                                         "folds_improved": top["folds_improved"], "folds": n}))
+            chosen.append(best)
+            current = o["sse"]
 
-    # final coefficients on every training flight, uncertainty by jackknife over the flights
-    fitter = search.fitter(delay)
-    names = _names(linear)
-    theta = fitter.fit(names)
-    _, thetas = fitter.cv(names)
-    se = _jackknife(thetas)
-    coef = {k: np.array(c) for k, c in split_coefficients(names, theta).items()}
-    errs = split_coefficients(names, se)
-    for f in found:
-        c = LIBRARY[f.name]
+    # entries that only correlate with a disagreement outside the library are not named
+    generic_cache: dict[tuple, Any] = {}
+    kept = []
+    for pk in picks:
+        if pk["name"] == DELAY.name:
+            kept.append(pk)
+            continue
+        ratio = _explains(search, chosen, pk["name"], delay, generic_cache)
+        pk["generic_share"] = ratio
+        if ratio >= share:
+            kept.append(pk)
+    chosen = [pk["name"] for pk in kept if pk["name"] != DELAY.name]
+    if not any(pk["name"] == DELAY.name for pk in kept):
+        delay = 0.0
+
+    # final coefficients on every block, uncertainty by jackknife over the folds
+    g = search.grams(delay)
+    cols = search.cols(chosen)
+    theta = g.solve(cols)
+    _, thetas = g.heldout(cols)
+    names = [NOMINAL.name, *chosen]
+    coef = split_coefficients(names, theta)
+    fold_coef = [split_coefficients(names, t) for t in thetas]
+    findings: list[Finding] = []
+    named_later = set(chosen) | ({DELAY.name} if delay else set())
+    for pk in kept:
+        name = pk["name"]
+        c = LIBRARY[name]
         if c is DELAY:
-            f.params = {DELAY.params[0]: delay}
-            f.evidence["stderr"] = {DELAY.params[0]: _delay_stderr(search, linear, delays)}
+            params = {DELAY.params[0]: delay}
+            stderr = {DELAY.params[0]: _delay_stderr(search, chosen, (0.0,) + delays)}
+            channels = CHANNELS
         else:
-            f.params = _params(c, coef[f.name])
-            f.evidence["stderr"] = _params(c, errs[f.name])
-    _explained_shares(search, found, delay)
+            th = np.array(coef[name])
+            params = dict(zip(c.params, c.values(th, v)))
+            # jackknife of the physical values themselves: the map from the columns' coefficients
+            # may be nonlinear (inertia) or mix them (rotor spread)
+            se = _jackknife(np.array([c.values(fc[name], v) for fc in fold_coef]))
+            stderr = dict(zip(c.params, (float(x) for x in se)))
+            channels = _channels_of(search, name, th, delay)
+        alts = [a for a in pk["alternatives"] if a not in named_later]
+        ev = {k: pk[k] for k in ("round", "heldout_gain", "size", "z", "p", "blocks_improved", "blocks")}
+        ev["stderr"] = stderr
+        ev["ci"] = {k: (params[k] - 1.96 * stderr[k], params[k] + 1.96 * stderr[k]) for k in params}
+        ev["stability"] = _stability(search, chosen, name, pk["competitors"], delay)
+        if "generic_share" in pk:
+            ev["generic_share"] = pk["generic_share"]
+        if alts:
+            ev["used"] = name
+            ev["separate_by"] = {a: LIBRARY[a].excited_by for a in [name, *alts]}
+            findings.append(Finding("ambiguous", None, channels, params, ev, (name, *alts)))
+        else:
+            findings.append(Finding("named", name, channels, params, ev))
+
+    # what is left: channel by channel, the generic sparse fit
+    resid, _ = search.residual(chosen, delay)
+    lib, terms = search.terms(delay)
+    gains = generic.heldout_gain(terms, resid, search.blocks, g.fold)
+    extra_terms: dict[str, float] = {}
+    generic_fits: list[tuple[int, np.ndarray]] = []
+    for c in range(6):
+        z, p = _pvalue(gains[:, c])
+        p = min(1.0, 6 * p)
+        size = float(np.sqrt(max(gains[:, c].sum(), 0.0) / n_samples))
+        if p > alpha or size < floor:
+            continue
+        coef_c = generic.sparse_fit(terms, resid[:, [c]])
+        raw, shown = generic.terms_of(coef_c, lib, [c], search.weights)
+        if not raw:
+            continue
+        extra_terms.update(raw)
+        generic_fits.append((c, coef_c[0] / search.weights[c]))
+        findings.append(Finding("unnamed", None, (CHANNELS[c],), shown, {
+            "heldout_gain": float(gains[:, c].sum() / total), "size": size, "z": z, "p": p,
+            "blocks_improved": int((gains[:, c] > 0).sum()), "blocks": int(len(gains))}))
+    findings.sort(key=lambda f: -f.evidence["heldout_gain"])
 
     dk_f, dk_m = coef[NOMINAL.name]
-    augmented_vehicle = dataclasses.replace(v, k_f=v.k_f + dk_f, k_m=v.k_m + dk_m)
-    effects = [n for n in names if n != NOMINAL.name]
-    step = AugmentedStep(augmented_vehicle, effects, np.concatenate([coef[n] for n in effects]) if effects else [])
-    model = AugmentedPredictor(step, delay=delay, name="discovered")
+    corrections = {n: LIBRARY[n].values(coef[n], v) for n in chosen if LIBRARY[n].kind == "correction"}
+    augmented_vehicle = refitted_vehicle(v, dk_f, dk_m, corrections)
+    named_wrench = [n for n in chosen if LIBRARY[n].kind == "wrench"]
+    named_values = [x for n in named_wrench for x in coef[n]]
+    model = AugmentedPredictor(AugmentedStep(augmented_vehicle, named_wrench + list(extra_terms),
+                                             named_values + list(extra_terms.values())), delay=delay, name="discovered")
+    if extra_terms and not _stable(model, train_flights, horizon, batch_size):
+        # a sparse fit that makes the training rollouts diverge does not join the model
+        model = AugmentedPredictor(AugmentedStep(augmented_vehicle, named_wrench, named_values), delay=delay,
+                                   name="discovered")
+        for f in findings:
+            if f.verdict == "unnamed":
+                f.evidence["added"] = False
     nominal = AugmentedPredictor(AugmentedStep(v), name="nominal")
     before = benchmark.evaluate(nominal, test_flights, horizon=horizon, batch_size=batch_size)
     after = benchmark.evaluate(model, test_flights, horizon=horizon, batch_size=batch_size)
     ref = benchmark.evaluate(oracle, test_flights, horizon=horizon, batch_size=batch_size) if oracle else None
-    result = DiscoveryResult(found, before, after, model, nominal, augmented_vehicle, rounds, threshold, ref)
+    result = DiscoveryResult(findings, before, after, model, nominal, augmented_vehicle, rounds, alpha, floor,
+                             search.noise, ref)
+    if sindy:
+        result.sindy = _sindy_baseline(search, v, test_flights, horizon, batch_size)
     if analysis:
         from nanosysid.discover.analysis import disagreement
 
-        result.analysis = disagreement(result, search, names, theta, delay, test_flights, horizon=horizon,
-                                       batch_size=batch_size)
+        result.analysis = disagreement(result, search, names, theta, delay, test_flights,
+                                       generic_fits=generic_fits, horizon=horizon, batch_size=batch_size)
     return result
 
 
-def _delay_stderr(search: _Search, linear: list[str], delays: Sequence[float]) -> float:
-    """Jackknife of the delay: refitted without each training flight in turn."""
-    n = len(search.flights)
-    sse = np.zeros((len(delays), n))  # in-sample SSE of each delay, on all flights but one
-    for a, d in enumerate(delays):
-        f = search.fitter(d)
-        for i in range(n):
-            rest = [j for j in range(n) if j != i]
-            sse[a, i] = f.sse(_names(linear), f.fit(_names(linear), rest), rest)
-    picks = np.asarray(delays)[sse.argmin(axis=0)]
-    return float(_jackknife(picks[:, None])[0])
+def _stable(model: AugmentedPredictor, flights: Sequence[Flight], horizon: int, batch_size: int) -> bool:
+    """Whether the model's rollouts stay finite over every window of ``flights``."""
+    try:
+        benchmark.evaluate(model, flights, horizon=horizon, batch_size=batch_size)
+    except PredictionError:
+        return False
+    return True
 
 
-def _explained_shares(search: _Search, found: list[Finding], delay: float) -> None:
-    """Each finding's share of the nominal residual, fitted on all training flights, adding
-    the findings in the order they were named."""
-    linear: list[str] = []
-    d = 0.0
-    f = search.fitter(d)
-    prev = f.sse(_names(linear), f.fit(_names(linear)), range(len(search.flights)))
-    for fd in found:
-        if fd.name == DELAY.name:
-            d = delay
-        else:
-            linear.append(fd.name)
-        f = search.fitter(d)
-        now = f.sse(_names(linear), f.fit(_names(linear)), range(len(search.flights)))
-        fd.evidence["explained_share"] = float((prev - now) / search.total)
-        prev = now
+def _signs_ok(name: str, thetas: np.ndarray, search: _Search, chosen: list[str]) -> bool:
+    """No coefficient with a physical sign is negative by more than two standard errors, and a
+    correction stays within its bound of the nominal value."""
+    c = LIBRARY[name]
+    if c is DELAY:
+        return True
+    k = len(search.cols(chosen))  # the candidate's columns come last
+    th = thetas[:, k:]
+    mean, se = th.mean(axis=0), _jackknife(th)
+    if any(s > 0 and m < -2 * e for s, m, e in zip(c.signs, mean, se)):
+        return False
+    if c.bound is not None:
+        values = c.values(mean, search.vehicle)
+        if any(not np.isfinite(x) or abs(x) > c.bound * abs(n) for x, n in zip(values, c.nominal(search.vehicle))):
+            return False
+    return True
+
+
+def _best_delay(search: _Search, chosen: list[str], delays: Sequence[float]) -> float:
+    cols = search.cols(chosen)
+    sse = {d: search.grams(d).sse(cols, search.grams(d).solve(cols)).sum() for d in delays}
+    return min(sse, key=sse.get)
+
+
+def _delay_stderr(search: _Search, chosen: list[str], delays: Sequence[float]) -> float:
+    """Jackknife of the delay over the folds: chosen on all folds but one, in turn."""
+    cols = search.cols(chosen)
+    picks = []
+    for k in range(search.folds):
+        train = np.flatnonzero(search.grams(0.0).fold != k)
+        sse = {d: search.grams(d).sse(cols, search.grams(d).solve(cols, train), train).sum() for d in delays}
+        picks.append(min(sse, key=sse.get))
+    return float(_jackknife(np.array(picks)[:, None])[0])
+
+
+def _stability(search: _Search, chosen: list[str], name: str, competitors: list[str], delay: float) -> float:
+    """Share of the folds' refits (all folds but one) in which ``name``, with the other chosen
+    entries, leaves less in-sample residual than each competitor in its place."""
+    if not competitors or name == DELAY.name:
+        return 1.0
+    g = search.grams(delay)
+    others = [n for n in chosen if n != name]
+    wins = 0
+    for k in range(search.folds):
+        train = np.flatnonzero(g.fold != k)
+
+        def sse(n: str) -> float:
+            cols = search.cols(others + [n])
+            return float(g.sse(cols, g.solve(cols, train), train).sum())
+
+        mine = sse(name)
+        wins += all(mine <= sse(c) for c in competitors if c != DELAY.name and c not in others)
+    return wins / search.folds
+
+
+def _explains(search: _Search, chosen: list[str], name: str, delay: float, cache: dict) -> float:
+    """Held-out gain of ``name`` added last, over the generic fit's on the residual without it,
+    on the channels it acts on."""
+    others = [n for n in chosen if n != name]
+    g = search.grams(delay)
+    base, _ = g.heldout(search.cols(others), per_channel=True)
+    mine, _ = g.heldout(search.cols(others + [name]), per_channel=True)
+    own = g.solve(search.cols(others + [name]))[-entry(name).n_columns:]
+    channels = [CHANNELS.index(c) for c in _channels_of(search, name, own, delay)]
+    if not channels:
+        return 0.0
+    gain = float((base - mine)[:, channels].sum())
+    key = (tuple(others), delay)
+    if key not in cache:
+        resid, _ = search.residual(others, delay)
+        _, terms = search.terms(delay)
+        cache[key] = generic.heldout_gain(terms, resid, search.blocks, g.fold)
+    ggen = float(np.clip(cache[key][:, channels].sum(), 0, None))
+    return 1.0 if ggen <= 0 else gain / ggen
+
+
+def _sindy_baseline(search: _Search, vehicle: Vehicle, test_flights, horizon, batch_size) -> dict[str, Any]:
+    """The plain SINDy discrepancy model: generic sparse terms on the nominal residual, no names."""
+    resid, theta = search.residual([], 0.0)
+    lib, terms = search.terms(0.0)
+    coef = generic.sparse_fit(terms, resid)
+    kept, shown = generic.terms_of(coef, lib, range(6), search.weights)
+    dk_f, dk_m = theta
+    step = AugmentedStep(refitted_vehicle(vehicle, dk_f, dk_m, {}), list(kept),
+                         list(kept.values()))
+    model = AugmentedPredictor(step, name="sindy")
+    try:
+        scores = benchmark.evaluate(model, test_flights, horizon=horizon, batch_size=batch_size)
+    except PredictionError:  # its rollouts diverge: the plain fit's own failure, recorded as such
+        return {"terms": shown, "simerr": {q: math.inf for q in QUANTITIES}, "scores": None, "model": model,
+                "diverged": True}
+    return {"terms": shown, "simerr": scores.simerr, "scores": scores, "model": model, "diverged": False}

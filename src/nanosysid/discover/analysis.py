@@ -33,14 +33,18 @@ def _regime_variables(f: Flight) -> dict[str, np.ndarray]:
 REGIMES = ("speed [m/s]", "tilt [deg]", "throttle [ΣΩ² / mean]", "rotor-speed rate [rad/s²]")
 
 
-def _residuals(data, names, theta, weights):
-    """Weighted residual before (nominal) and after the fitted effects, per flight, (T, 6) each."""
-    before = [d.r * weights for d in data]
-    after = []
+def _explained(data, names, theta, generic_fits, lib) -> list[np.ndarray]:
+    """Per flight, the wrench ``(T, 6)`` the fitted entries and generic terms add."""
+    out = []
     for d in data:
         X = np.concatenate([d.features[n] for n in names], axis=-1)  # (T, 6, P)
-        after.append((d.r - X @ theta) * weights)
-    return before, after
+        w = X @ theta
+        if generic_fits:
+            terms = lib(d.terms)
+            for c, coef in generic_fits:
+                w[:, c] += terms @ coef
+        out.append(w)
+    return out
 
 
 def _rms(a: np.ndarray) -> list[float]:
@@ -48,17 +52,32 @@ def _rms(a: np.ndarray) -> list[float]:
 
 
 def disagreement(result, search, names: list[str], theta: np.ndarray, delay: float, test_flights: Sequence[Flight],
-                 *, horizon: int, batch_size: int) -> dict[str, Any]:
-    """Tables (and the data of the report's figures) of where the models disagree."""
-    w = search.weights
+                 *, generic_fits=(), horizon: int, batch_size: int) -> dict[str, Any]:
+    """Tables (and the data of the report's figures) of where the models disagree, in N and N m
+    beside each channel's noise floor."""
     train = search.data(delay)
+    lib = search.terms(delay)[0] if generic_fits else None
     test = [flight_data(f, search.vehicle, delay, window=search.window, order=search.order) for f in test_flights]
-    out: dict[str, Any] = {"channels": list(CHANNELS), "weights": [float(x) for x in w]}
+    # "before" is the nominal model as given (its k_F and k_M not refitted): the residual of delay 0
+    nominal = {"train": [d.r for d in search.data(0.0)],
+               "test": [flight_data(f, search.vehicle, 0.0, window=search.window, order=search.order).r
+                        for f in test_flights]}
+    out: dict[str, Any] = {"channels": list(CHANNELS), "noise": [float(x) for x in result.noise]}
+    res = {}
     for part, data in (("test", test), ("train", train)):
-        b, a = (np.concatenate(r) for r in _residuals(data, names, theta, w))
+        after = [d.r - e for d, e in zip(data, _explained(data, names, theta, generic_fits, lib))]
+        b, a = np.concatenate(nominal[part]), np.concatenate(after)
+        res[part] = (b, a)
         out[f"rms_{part}"] = {"before": _rms(b), "after": _rms(a)}
-    # regimes, on the training flights (b, a as the loop left them): RMS of each channel per
-    # quartile of each variable
+    b, a = res["train"]
+    # which channel's disagreement costs the benchmark most: the nominal model's rollouts on the
+    # test flights, given each channel's measured residual as a known extra wrench
+    out["rollouts"] = _rollout_shares(result, search, test_flights, horizon, batch_size)
+    # regimes of the channels that carry the largest share of the SimErr, on the training flights:
+    # RMS of each channel per quartile of each variable
+    shares = {c: sum(1 - r[k] / out["rollouts"]["nominal"][k] for k in r)
+              for c, r in out["rollouts"]["with_measured_channel"].items()}
+    out["regime_channels"] = sorted(CHANNELS, key=lambda c: -shares[c])[:2]
     var = {k: np.concatenate([v[EDGE:-EDGE] for v in (_regime_variables(f)[k] for f in search.flights)])
            for k in REGIMES}
     regimes = {}
@@ -68,7 +87,7 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
         regimes[k] = {"edges": [float(e) for e in edges],
                       "before": [_rms(b[idx == i]) for i in range(4)], "after": [_rms(a[idx == i]) for i in range(4)]}
     out["regimes"] = regimes
-    # frequency bands: share of each channel's residual power per band, before and after
+    # frequency bands: each channel's residual power per band, before and after
     dt = float(np.median(np.diff(search.flights[0].t)))
     bands = {}
     for label, arr in (("before", b), ("after", a)):
@@ -77,11 +96,7 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
         bands[label] = [[float(psd[(freq >= lo) & (freq < hi), c].sum() * df) for c in range(6)] for lo, hi in BANDS]
     out["bands"] = {"edges": [list(bd) for bd in BANDS], **bands}
     out["samples"] = {"train": int(len(b)), "test": int(sum(len(d.r) for d in test))}
-    # which channel's disagreement costs the benchmark most: the nominal model's rollouts on the
-    # test flights, given each channel's measured residual as a known extra wrench
-    out["rollouts"] = _rollout_shares(result, search, test_flights, horizon, batch_size)
-    # data for the before/after figure: each found effect's strongest feature against the residual
-    out["scatter"] = _scatter(result, train, names, theta, w)
+    out["scatter"] = _scatter(result, train, names, theta, generic_fits, lib, var, 1 / dt)
     return out
 
 
@@ -106,26 +121,54 @@ def _rollout_shares(result, search, flights, horizon, batch_size) -> dict[str, A
     return {"nominal": result.before.simerr, "with_measured_channel": rows}
 
 
-def _scatter(result, train, names, theta, w, n_max: int = 4000) -> dict[str, Any]:
-    """For each found linear effect, in the channel it acts on most: its fitted contribution,
-    the residual with every other fitted term removed, and what is left after all of them."""
-    out = {}
-    offs = {}
-    k = 0
+def _where(x: np.ndarray, var: dict[str, np.ndarray], fs: float) -> tuple[str, str]:
+    """The flight regime (the quartile of one regime variable) and the frequency band where a
+    signal ``x (N,)`` is largest."""
+    best, label = 0.0, ""
+    for k, v in var.items():
+        edges = np.quantile(v, [0, 0.25, 0.5, 0.75, 1.0])
+        idx = np.clip(np.searchsorted(edges, v, side="right") - 1, 0, 3)
+        rms = np.array([np.sqrt((x[idx == i] ** 2).mean()) for i in range(4)])
+        contrast = rms.max() / max(rms.min(), 1e-30)
+        if contrast > best:
+            i = int(rms.argmax())
+            best, label = contrast, f"{k} {edges[i]:.3g} – {edges[i + 1]:.3g} ({contrast:.1f}x the quietest quartile)"
+    freq, psd = welch(x, fs=fs, nperseg=256)
+    power = [psd[(freq >= lo) & (freq < hi)].sum() for lo, hi in BANDS]
+    b = int(np.argmax(power))
+    band = f"{BANDS[b][0]:g}–{BANDS[b][1]:g} Hz ({100 * power[b] / max(sum(power), 1e-300):.0f} % of its power)"
+    return label, band
+
+
+def _scatter(result, train, names, theta, generic_fits, lib, var, fs, n_max: int = 4000) -> dict[str, Any]:
+    """For each finding, in the channel it acts on most: its fitted contribution, the residual
+    with everything else fitted removed, and what is left after all of it (N or N m); and the
+    regime and band where the contribution is largest (into the finding's evidence)."""
+    offs, k = {}, 0
     for nm in names:
         P = train[0].features[nm].shape[-1]
         offs[nm] = slice(k, k + P)
         k += P
     R = np.concatenate([d.r for d in train])
-    X = np.concatenate([np.concatenate([d.features[n] for n in names], axis=-1) for d in train])
+    total = np.concatenate(_explained(train, names, theta, generic_fits, lib))
     step = max(1, len(R) // n_max)
-    for f in result.found:
-        if f.name not in offs:
+    out = {}
+    terms = np.concatenate([lib(d.terms) for d in train]) if generic_fits else None
+    for i, f in enumerate(result.findings):
+        contrib = np.zeros_like(R)
+        if f.entry in offs:
+            X = np.concatenate([d.features[f.entry] for d in train])
+            contrib = X @ theta[offs[f.entry]]
+        elif f.verdict == "unnamed":
+            for c, coef in generic_fits:
+                if CHANNELS[c] in f.channels:
+                    contrib[:, c] = terms @ coef
+        else:
             continue
-        contrib = X[:, :, offs[f.name]] @ theta[offs[f.name]]  # (N, 6)
-        ch = int(np.argmax((contrib * w).std(axis=0)))
-        others = X @ theta - contrib
-        out[f.name] = {"channel": CHANNELS[ch], "model": contrib[::step, ch].tolist(),
-                       "residual_after": (R - X @ theta)[::step, ch].tolist(),
-                       "residual_others_removed": (R - others)[::step, ch].tolist()}
+        ch = int(np.argmax(contrib.std(axis=0) / np.asarray(result.noise)))
+        label = f.entry or f"unnamed ({', '.join(f.channels)})"
+        f.evidence["regime"], f.evidence["band"] = _where(contrib[:, ch], var, fs)
+        out[label] = {"verdict": f.verdict, "channel": CHANNELS[ch], "noise": float(result.noise[ch]),
+                      "model": contrib[::step, ch].tolist(), "residual_after": (R - total)[::step, ch].tolist(),
+                      "residual_others_removed": (R - total + contrib)[::step, ch].tolist()}
     return out

@@ -1,4 +1,4 @@
-"""Measured against predicted body wrench, and the regression that names effects.
+"""Measured against predicted body wrench, and the regression data every test of discovery reads.
 
 The measured wrench is what the rigid body must have felt: force ``m a_IMU`` from the
 accelerometer, torque ``J dω/dt + ω × Jω`` from the gyro (Savitzky-Golay derivative, as the
@@ -6,18 +6,23 @@ identify stage). The nominal model predicts ``[0, 0, k_F ΣΩ²]`` and the paper
 Their difference, per channel, is what the candidates must explain. Model-side signals are
 smoothed with the same Savitzky-Golay window, so the filter does not show up as a disagreement.
 
-Every fit is a weighted least-squares problem over the six channels (each weighted by the
-inverse spread of its nominal residual on the training flights), and every score is held out:
-leave one training flight out, fit on the others, measure on it.
+Every fit is a least-squares problem over the six channels, each weighted by the inverse of
+its noise floor (:func:`noise_floor`: estimated from the measurements, not from any simulator
+setting), so a weighted sum of squares counts noise variances. The samples are cut into
+blocks of a few seconds, longer than the correlation of the smoothed noise and of slow
+disturbances; blocks are dealt round-robin to ``folds`` folds, and every score is held out: fitted on
+the other folds, measured on the block. :class:`Grams` keeps each block's normal equations, so
+that a fit of any set of columns on any set of blocks is one small solve.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Sequence
 
 import numpy as np
 import torch
-from scipy.signal import savgol_filter
+from scipy.signal import savgol_coeffs, savgol_filter
 
 from nanosysid import effects
 from nanosysid.dataio import Flight
@@ -25,9 +30,14 @@ from nanosysid.identify import body_torque
 from nanosysid.rollout import advance_inputs
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "Fitter"]
+__all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "noise_floor", "Grams", "EDGE",
+           "COLUMN_ENTRIES"]
 
 EDGE = 10  # samples dropped at each end of a flight: the smoothing filter's edge effects
+
+# the entries whose columns the regression holds: the nominal refit, then every library entry
+# with columns (input_delay is a search over the data, not a column)
+COLUMN_ENTRIES = (effects.NOMINAL.name,) + tuple(n for n, e in effects.LIBRARY.items() if e.columns is not None)
 
 
 def measured_wrench(flight: Flight, vehicle: Vehicle, window: int, order: int) -> np.ndarray:
@@ -48,18 +58,51 @@ def nominal_wrench(u: np.ndarray, vehicle: Vehicle) -> np.ndarray:
     return w
 
 
+def _white_std(a: np.ndarray) -> np.ndarray:
+    """Std of the white noise on each column of ``a (T, k)``: the median absolute second
+    difference, which the slow flight signal barely moves (``Var(x'') = 6 sigma²`` for white
+    noise; 0.6745 turns a median absolute value into a std)."""
+    d2 = np.diff(a, n=2, axis=0)
+    return np.median(np.abs(d2), axis=0) / 0.6745 / np.sqrt(6.0)
+
+
+def noise_floor(flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int) -> np.ndarray:
+    """Std of the measurement noise in each channel of the smoothed residual, ``(6,)`` in N and N m.
+
+    The white noise of the measured force (accelerometer), of the gyro and of the nominal wrench
+    (the recorded rotor speeds' noise through the rotor model), each estimated from the data
+    themselves and carried through the Savitzky-Golay smoothing (force, nominal wrench) and
+    derivative (torque) filters.
+    """
+    dt = float(np.median(np.diff(flights[0].t)))
+    smooth = np.sqrt((savgol_coeffs(window, order) ** 2).sum())
+    deriv = np.sqrt((savgol_coeffs(window, order, deriv=1, delta=dt) ** 2).sum())
+    acc, gyro, nom = [], [], []
+    for f in flights:
+        acc.append(_white_std(np.column_stack([f.extra[c] for c in ("ax_body", "ay_body", "az_body")])))
+        gyro.append(_white_std(f.y[:, 10:13]))
+        nom.append(_white_std(nominal_wrench(f.u, vehicle)))
+    acc, gyro, nom = (np.median(a, axis=0) for a in (acc, gyro, nom))
+    measured = np.concatenate([vehicle.mass * acc * smooth, np.asarray(vehicle.inertia) * gyro * deriv])
+    return np.sqrt(measured ** 2 + (nom * smooth) ** 2)
+
+
 @dataclass
 class FlightData:
-    """One flight's regression data for one rotor-speed delay: the residual wrench ``r (T, 6)``
-    and each library effect's features ``(T, 6, P)``, smoothed and trimmed at the edges."""
+    """One flight's regression data for one rotor-speed delay, smoothed and trimmed at the edges.
+
+    Attributes:
+        r: The residual wrench ``(T, 6)``.
+        features: Each entry of :data:`COLUMN_ENTRIES`' columns ``(T, 6, P)``.
+        terms: The generic terms' signals :data:`nanosysid.effects.TERM_SIGNALS` ``(T, S)``.
+        t: Time of each sample (s).
+    """
 
     name: str
     r: np.ndarray
     features: dict[str, np.ndarray] = field(default_factory=dict)
-
-
-def _smooth(a: np.ndarray, window: int, order: int) -> np.ndarray:
-    return savgol_filter(a, window, order, axis=0)
+    terms: np.ndarray | None = None
+    t: np.ndarray | None = None
 
 
 def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int = 15, order: int = 3,
@@ -70,56 +113,97 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
     om_dot = savgol_filter(u, window, order, deriv=1, delta=dt, axis=0)
     meas = measured_wrench(flight, vehicle, window, order) if measured is None else measured
     r = meas - _smooth(nominal_wrench(u, vehicle), window, order)
-    x, om, od = (torch.from_numpy(np.ascontiguousarray(a)) for a in (flight.y, u, om_dot))
-    feats = {}
-    for e in (effects.NOMINAL, *(e for e in effects.LIBRARY.values() if e.columns is not None)):
-        feats[e.name] = _smooth(effects.features([e.name], x, om, od, vehicle).numpy(), window, order)[EDGE:-EDGE]
-    return FlightData(flight.name, r[EDGE:-EDGE], feats)
+    x, om, od = (torch.from_numpy(np.ascontiguousarray(v)) for v in (flight.y, u, om_dot))
+    feats = {name: _smooth(effects.features([name], x, om, od, vehicle).numpy(), window, order)[EDGE:-EDGE]
+             for name in COLUMN_ENTRIES}
+    sg = effects.signals(x, om, od)
+    terms = np.column_stack([torch.as_tensor(fn(sg, vehicle)).numpy() * np.ones(len(flight))
+                             for _, fn in effects.TERM_SIGNALS.values()])
+    return FlightData(flight.name, r[EDGE:-EDGE], feats, _smooth(terms, window, order)[EDGE:-EDGE],
+                      flight.t[EDGE:-EDGE])
 
 
-class Fitter:
-    """Weighted least squares of the residual on candidate features, over flights.
+def _smooth(a: np.ndarray, window: int, order: int) -> np.ndarray:
+    return savgol_filter(a, window, order, axis=0)
+
+
+def block_ids(data: Sequence[FlightData], block: int) -> np.ndarray:
+    """Block of every sample, flights in order, ``block`` samples a block (a flight's last,
+    shorter piece joins its previous block)."""
+    ids, start = [], 0
+    for d in data:
+        n = len(d.r)
+        k = max(1, n // block)
+        ids.append(start + np.minimum(np.arange(n) // block, k - 1))
+        start += k
+    return np.concatenate(ids)
+
+
+class Grams:
+    """Per-block normal equations of the weighted residual on a set of columns.
 
     Args:
-        data: One :class:`FlightData` per training flight (all for the same delay).
-        weights: Per-channel weights ``(6,)``: the inverse spread of the nominal residual.
+        X: Columns ``(N, 6, P)``; y: residual ``(N, 6)``; weights: per channel ``(6,)``;
+        blocks: block of every sample ``(N,)`` (0..B-1); folds: number of folds the blocks are
+        dealt to.
     """
 
-    def __init__(self, data: list[FlightData], weights: np.ndarray) -> None:
-        self.data, self.w = data, weights
+    def __init__(self, X: np.ndarray, y: np.ndarray, weights: np.ndarray, blocks: np.ndarray, folds: int) -> None:
+        B = int(blocks.max()) + 1
+        Xw = X * weights[None, :, None]
+        yw = y * weights[None, :]
+        P = X.shape[-1]
+        self.G = np.zeros((B, 6, P, P))  # per block and channel
+        self.h = np.zeros((B, 6, P))
+        self.e = np.zeros((B, 6))
+        for b in range(B):
+            m = blocks == b
+            xb, yb = Xw[m], yw[m]
+            self.G[b] = np.einsum("ncp,ncq->cpq", xb, xb)
+            self.h[b] = np.einsum("ncp,nc->cp", xb, yb)
+            self.e[b] = (yb ** 2).sum(axis=0)
+        self.B, self.P = B, P
+        self.fold = np.arange(B) % folds
+        self.folds = folds
+        self.Gt, self.ht, self.et = self.G.sum(1), self.h.sum(1), self.e.sum(1)  # channels summed
 
-    def _system(self, names: list[str], idx) -> tuple[np.ndarray, np.ndarray]:
-        X = np.concatenate([np.concatenate([self.data[i].features[n] for n in names], axis=-1) * self.w[:, None]
-                            for i in idx])  # (N, 6, P)
-        y = np.concatenate([self.data[i].r * self.w for i in idx])  # (N, 6)
-        return X.reshape(-1, X.shape[-1]), y.reshape(-1)
+    def solve(self, cols: np.ndarray, blocks: np.ndarray | None = None) -> np.ndarray:
+        """Coefficients of columns ``cols`` fitted on ``blocks`` (all when None)."""
+        idx = slice(None) if blocks is None else blocks
+        A = self.Gt[idx].sum(0)[np.ix_(cols, cols)]
+        b = self.ht[idx].sum(0)[cols]
+        return _solve(A, b)
 
-    def fit(self, names: list[str], idx=None) -> np.ndarray:
-        """Coefficients of the named candidates (in order, each with its P columns)."""
-        idx = range(len(self.data)) if idx is None else idx
-        A, b = self._system(names, idx)
-        scale = np.linalg.norm(A, axis=0)
-        scale[scale == 0] = 1.0
-        sol, *_ = np.linalg.lstsq(A / scale, b, rcond=None)
-        return sol / scale
+    def sse(self, cols: np.ndarray, theta: np.ndarray, blocks=slice(None), *, per_channel: bool = False) -> np.ndarray:
+        """Weighted SSE of each block in ``blocks`` (per channel: ``(n, 6)``) left by ``theta``."""
+        if per_channel:
+            G, h, e = self.G[blocks][..., cols[:, None], cols[None, :]], self.h[blocks][..., cols], self.e[blocks]
+            return e - 2 * h @ theta + np.einsum("bcpq,p,q->bc", G, theta, theta)
+        G, h, e = self.Gt[blocks][:, cols[:, None], cols[None, :]], self.ht[blocks][:, cols], self.et[blocks]
+        return e - 2 * h @ theta + np.einsum("bpq,p,q->b", G, theta, theta)
 
-    def sse(self, names: list[str], theta: np.ndarray, idx) -> float:
-        """Weighted sum of squared residuals left on flights ``idx``."""
-        A, b = self._system(names, idx)
-        return float(((b - A @ theta) ** 2).sum())
+    def heldout(self, cols: np.ndarray, *, per_channel: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Each block's held-out SSE (fitted on the other folds), ``(B,)`` or ``(B, 6)``, and
+        each fold's coefficients ``(folds, len(cols))``."""
+        out = np.zeros((self.B, 6) if per_channel else self.B)
+        thetas = np.zeros((self.folds, len(cols)))
+        for k in range(self.folds):
+            test = np.flatnonzero(self.fold == k)
+            th = self.solve(cols, np.flatnonzero(self.fold != k))
+            thetas[k] = th
+            out[test] = self.sse(cols, th, test, per_channel=per_channel)
+        return out, thetas
 
-    def cv(self, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
-        """Held-out SSE of each flight (fitted on the others) and the coefficients of each fold."""
-        n = len(self.data)
-        sse, thetas = np.zeros(n), []
-        for i in range(n):
-            rest = [j for j in range(n) if j != i]
-            th = self.fit(names, rest)
-            sse[i] = self.sse(names, th, [i])
-            thetas.append(th)
-        return sse, np.array(thetas)
 
-    def nominal_sse(self, idx=None) -> float:
-        """SSE of the residual itself (nothing explained)."""
-        idx = range(len(self.data)) if idx is None else idx
-        return float(sum(((self.data[i].r * self.w) ** 2).sum() for i in idx))
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Least squares from normal equations, columns scaled to unit diagonal; a column that is
+    zero on these blocks gets a zero coefficient."""
+    if len(b) == 0:
+        return np.zeros(0)
+    d = np.sqrt(np.clip(np.diag(A), 0, None))
+    ok = d > 1e-12 * max(d.max(), 1e-300)
+    x = np.zeros(len(b))
+    if ok.any():
+        As = A[np.ix_(ok, ok)] / np.outer(d[ok], d[ok])
+        x[ok] = np.linalg.lstsq(As, b[ok] / d[ok], rcond=1e-12)[0] / d[ok]
+    return x

@@ -111,12 +111,15 @@ def load_discovered(path: str | Path, *, name: str = "discovered") -> AugmentedP
     vehicle = Vehicle.from_mapping(d["vehicle"])
     names = list(d["effects"])
     for n in names:
-        if n not in effects.LIBRARY:
-            raise DataError(f"{path}: effect {n!r} is not in the library ({', '.join(effects.LIBRARY)}); "
-                            "rerun the discover stage")
-        if len(d["effects"][n]["coefficients"]) != len(effects.LIBRARY[n].params):
+        try:
+            e = effects.entry(n)
+        except KeyError as err:
+            raise DataError(f"{path}: {err.args[0]}; rerun the discover stage") from None
+        if e.kind != "wrench":
+            raise DataError(f"{path}: {n!r} is a {e.kind}, not an extra wrench: it belongs in the vehicle or the delay")
+        if len(d["effects"][n]["coefficients"]) != e.n_columns:
             raise DataError(f"{path}: effect {n!r} has {len(d['effects'][n]['coefficients'])} coefficients, "
-                            f"expected {len(effects.LIBRARY[n].params)}")
+                            f"expected {e.n_columns}")
     theta = [c for n in names for c in d["effects"][n]["coefficients"]]
     step = AugmentedStep(vehicle, names, theta, dt=float(d["dt"]), substeps=int(d["substeps"]))
     return AugmentedPredictor(step, delay=float(d["delay"]), name=name)

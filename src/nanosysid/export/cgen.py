@@ -139,7 +139,7 @@ def _dynamics(x: Sequence[Num], om: Sequence[Num], s: Sequence[Num], om_dot: Seq
     tau_extra = [0.0, 0.0, 0.0]
     if effects:
         vehicle = Vehicle(mass=mass, inertia=tuple(inertia), arm=arm, k_f=k_f, k_m=k_m, gravity=gravity)
-        sg = library.Signals(v=_rotate([-c for c in qv], qw, v), w=w, om=om, s=s, om_dot=om_dot)
+        sg = library.Signals(v=_rotate([-c for c in qv], qw, v), w=w, om=om, s=s, om_dot=om_dot, z=x[2])
         for name, theta in effects:
             f, t = library.wrench(name, theta, sg, vehicle)
             f_b = [a + b for a, b in zip(f_b, f)]

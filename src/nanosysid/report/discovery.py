@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -9,14 +10,14 @@ from typing import Any
 import numpy as np
 
 from nanosysid.dataio import atomic_file
-from nanosysid.discover import CHANNELS, LIBRARY, DiscoveryResult
+from nanosysid.discover import CHANNELS, LIBRARY, VERDICTS, DiscoveryResult
 from nanosysid.discover.analysis import BANDS, REGIMES
 from nanosysid.metrics import QUANTITIES
 from nanosysid.report.tables import results_table_md
 from nanosysid.viz.benchmark import mae_horizon_figure
-from nanosysid.viz.discovery import channel_figure, scatter_figure
+from nanosysid.viz.discovery import channel_figure, finding_figure
 
-__all__ = ["write_report", "result_dict", "gap_closed"]
+__all__ = ["write_report", "result_dict", "gap_closed", "verdicts_markdown"]
 
 _QLABEL = {"p": "position", "v": "velocity", "R": "orientation", "w": "angular velocity"}
 
@@ -33,16 +34,26 @@ def gap_closed(result: DiscoveryResult) -> dict[str, float | None]:
     return out
 
 
+def _finding_dict(f) -> dict[str, Any]:
+    return {"verdict": f.verdict, "name": f.name, "alternatives": list(f.alternatives), "channels": list(f.channels),
+            "params": f.params, "evidence": f.evidence}
+
+
 def result_dict(result: DiscoveryResult) -> dict[str, Any]:
     """JSON-ready summary (the figures' sample data left out)."""
     return {
+        "format": "nanosysid-discovery-1",
         "model": result.name,
-        "found": [{"name": f.name, "params": f.params, "evidence": f.evidence} for f in result.found],
-        "threshold": result.threshold,
+        "findings": [_finding_dict(f) for f in result.findings],
+        "alpha": result.alpha,
+        "floor": result.floor,
+        "noise_floor": dict(zip(CHANNELS, (float(x) for x in result.noise))),
         "rounds": result.rounds,
-        "vehicle": {"k_f": result.vehicle.k_f, "k_m": result.vehicle.k_m},
+        "vehicle": dataclasses.asdict(result.vehicle),
         "simerr": {"nominal": result.before.simerr, "discovered": result.after.simerr,
-                   **({"oracle": result.oracle.simerr} if result.oracle else {})},
+                   **({"oracle": result.oracle.simerr} if result.oracle else {}),
+                   **({"sindy": result.sindy["simerr"]} if result.sindy else {})},
+        **({"sindy_terms": result.sindy["terms"]} if result.sindy else {}),
         "gap_closed": gap_closed(result),
         "analysis": {k: v for k, v in result.analysis.items() if k != "scatter"},
     }
@@ -52,52 +63,128 @@ def _fmt(x: float) -> str:
     return f"{x:.4g}"
 
 
+def _unit(channel: str) -> str:
+    return "mN" if channel.startswith("F") else "mN·m"
+
+
+def _verdict_line(f) -> str:
+    ev = f.evidence
+    stats = (f"held-out gain {100 * ev['heldout_gain']:.2f} % of the nominal residual, size {ev['size']:.2f} noise "
+             f"floors, z = {ev['z']:.1f}, "
+             f"p = {ev['p']:.2g}, {ev['blocks_improved']} / {ev['blocks']} blocks improved")
+    if f.verdict == "named":
+        return f"**`{f.name}` named** on {', '.join(f.channels)} ({stats}; chosen in {100 * ev['stability']:.0f} % of the folds' refits)."
+    if f.verdict == "ambiguous":
+        alts = ", ".join(f"`{a}`" for a in f.alternatives)
+        how = "; ".join(f"`{a}`: {t}" for a, t in ev["separate_by"].items() if t)
+        return (f"**Ambiguous** on {', '.join(f.channels)}: {alts} explain it equally well ({stats}). The augmented "
+                f"model uses `{ev['used']}`, the one with the lowest held-out residual. Flights that would tell them "
+                f"apart: {how}.")
+    where = (f" It is largest at {ev['regime']}, in the band {ev['band']}." if "regime" in ev else "")
+    added = ("the augmented model adds those terms" if ev.get("added", True) else
+             "its terms would make the rollouts on the training flights diverge, so the augmented model leaves them out")
+    return (f"**Unnamed** disagreement on {', '.join(f.channels)} ({stats}): no library entry explains it; a sparse fit "
+            f"of generic terms captures it, and {added}.{where}")
+
+
+def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
+    """Discovery's verdicts (``result.json``'s ``findings``) as a short markdown list."""
+    if not findings:
+        return "**Discovery**: no disagreement stands above the noise floor."
+    lines = ["**Discovery's verdicts**", ""]
+    for f in findings:
+        where = ", ".join(f["channels"])
+        if f["verdict"] == "named":
+            lines.append(f"- `{f['name']}` named ({where})")
+        elif f["verdict"] == "ambiguous":
+            lines.append(f"- ambiguous ({where}): " + " or ".join(f"`{a}`" for a in f["alternatives"]))
+        else:
+            lines.append(f"- unnamed ({where}): " + " + ".join(f["params"]))
+    return "\n".join(lines)
+
+
 def write_report(result: DiscoveryResult, out: Path) -> None:
-    """``report.md``, ``result.json`` and ``figures/`` in ``out``."""
+    """``report.md``, ``result.json``, ``verdicts.md`` (for the rerun recordings) and ``figures/`` in ``out``."""
     out = Path(out)
     a = result.analysis
     figs = out / "figures"
     rows = {"nominal (physics_full)": result.before, f"discovered ({result.name})": result.after}
+    if result.sindy is not None and result.sindy["scores"] is not None:
+        rows["plain SINDy (generic terms, no names)"] = result.sindy["scores"]
     if result.oracle is not None:
         rows["oracle"] = result.oracle
     mae_horizon_figure(rows, figs / "mae_horizon.png")
     if a:
         channel_figure(a, figs / "channels.png")
-    if a.get("scatter"):
-        scatter_figure(a["scatter"], figs / "effects.png")
+    scatter = a.get("scatter", {}) if a else {}
+    fig_of = {}
+    for i, (label, d) in enumerate(scatter.items(), 1):
+        fig_of[label] = f"figures/finding_{i}.png"
+        finding_figure(label, d, out / fig_of[label])
     closed = gap_closed(result)
 
     L: list[str] = ["# Model-discrepancy discovery", ""]
-    named = ", ".join(f"`{f.name}`" for f in result.found) or "no effect"
-    L += [f"The nominal model (rigid body with the torque equation, k_F and k_M identified on the "
-          f"training flights) was compared with the measurements. The workflow named {named}; the "
-          f"augmented model `{result.name}` is scored below against the nominal model"
+    counts = {v: sum(f.verdict == v for f in result.findings) for v in VERDICTS}
+    L += [f"The nominal model (rigid body with the torque equation, k_F and k_M identified on the training flights) "
+          f"was compared with the measurements. {len(result.findings)} disagreements stand above the noise floor: "
+          f"{counts['named']} named, {counts['ambiguous']} ambiguous, {counts['unnamed']} unnamed. The augmented model "
+          f"`{result.name}` is scored below against the nominal model"
           + (" and the oracle (the simulator's true dynamics)." if result.oracle else "."), ""]
     L += ["| SimErr on the test flights | " + " | ".join(_QLABEL[k] for k in QUANTITIES) + " |",
           "|---|" + "---|" * len(QUANTITIES)]
-    for label, s in rows.items():
-        L.append(f"| {label} | " + " | ".join(_fmt(s.simerr[k]) for k in QUANTITIES) + " |")
+    for label, sc in rows.items():
+        L.append(f"| {label} | " + " | ".join(_fmt(sc.simerr[k]) for k in QUANTITIES) + " |")
     if result.oracle is not None:
         L.append("| share of the nominal–oracle gap closed | "
                  + " | ".join("–" if closed[k] is None else f"{100 * closed[k]:.0f} %" for k in QUANTITIES) + " |")
     L += ["", "![MAE against horizon: nominal, discovered and oracle](figures/mae_horizon.png)", "",
           "*MAE against the prediction horizon on the test flights (log scale).*", ""]
 
+    L += ["## Verdicts", ""]
+    if not result.findings:
+        L += ["No disagreement stands above the noise floor: the nominal model explains the measurements as well as "
+              "the noise lets anything do.", ""]
+    for f in result.findings:
+        L += [_verdict_line(f), ""]
+        if f.params:
+            if f.verdict == "unnamed":
+                L += ["| generic term (`~`: centred and scaled) | coefficient |", "|---|---|"]
+                L += [f"| {k} | {v:.4g} |" for k, v in f.params.items()]
+            else:
+                desc = LIBRARY[f.entry].description
+                L += [f"*{desc}*", "", "| coefficient | value | 95 % interval |", "|---|---|---|"]
+                for k, v in f.params.items():
+                    lo, hi = f.evidence["ci"][k]
+                    L.append(f"| {k} | {v:.4g} | {lo:.4g} … {hi:.4g} |")
+            L.append("")
+        label = f.entry or f"unnamed ({', '.join(f.channels)})"
+        if label in fig_of:
+            L += [f"![{label}: residual against its fitted contribution]({fig_of[label]})", "",
+                  f"*{label}: its fitted contribution against the residual of {scatter[label]['channel']}, before "
+                  "(everything else found removed: along the dashed line when it explains it) and after (what is "
+                  "left); grey: ± the channel's noise floor.*", ""]
+    if result.sindy is not None:
+        L += [f"**Plain SINDy** (the same generic terms on the nominal residual, no names) keeps "
+              f"{len(result.sindy['terms'])} terms" + ("; its rollouts diverge on the test flights." if result.sindy["diverged"]
+                                                      else ".") , ""]
+
     if a:
         L += ["## Where the nominal model and the measurements disagree", "",
               "Measured body wrench: force `m a_IMU` from the accelerometer, torque `J dω/dt + ω × Jω` from "
-              "the gyro (Savitzky-Golay derivative). Nominal: `[0, 0, k_F ΣΩ²]` and the mixer torques. Each "
-              "channel is in units of the standard deviation of its nominal residual on the training flights "
-              "(an RMS well above 1 means a constant part: a torque the rotor model never predicts) "
+              "the gyro (Savitzky-Golay derivative). Nominal: `[0, 0, k_F ΣΩ²]` and the mixer torques. RMS of "
+              "measured minus predicted, in mN and mN·m, beside each channel's noise floor: the std of the "
+              "measurement noise left after the smoothing, estimated from the data (accelerometer, gyro and "
+              "rotor speeds) "
               f"({a['samples']['train']} training and {a['samples']['test']} test samples).", "",
-              "| channel | " + " | ".join(CHANNELS) + " |", "|---|" + "---|" * 6]
+              "| | " + " | ".join(f"{c} [{_unit(c)}]" for c in CHANNELS) + " |", "|---|" + "---|" * 6]
+        L.append("| noise floor | " + " | ".join(f"{1e3 * x:.3g}" for x in a["noise"]) + " |")
         for part in ("train", "test"):
             for when in ("before", "after"):
-                lab = f"RMS, {'training' if part == 'train' else 'test'} flights, {'nominal' if when == 'before' else 'with the effects'}"
-                L.append(f"| {lab} | " + " | ".join(f"{x:.3f}" for x in a[f"rms_{part}"][when]) + " |")
+                lab = f"RMS, {'training' if part == 'train' else 'test'} flights, {'nominal' if when == 'before' else 'with what was found'}"
+                L.append(f"| {lab} | " + " | ".join(f"{1e3 * x:.3g}" for x in a[f"rms_{part}"][when]) + " |")
         L += ["", "![RMS of the residual per channel, before and after](figures/channels.png)", "",
-              "*RMS of measured minus predicted wrench per channel, nominal model (red) and with the named "
-              "effects (green).*", ""]
+              "*RMS of measured minus predicted wrench per channel, nominal model (red) and with what was found "
+              "(green); black: the noise floor.*", ""]
         ro = a["rollouts"]
         L += ["**Which disagreement costs the benchmark most.** The nominal model's rollouts on the test "
               "flights, given one channel's measured residual as a known extra wrench: the share of the "
@@ -107,59 +194,56 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
         for c in order:
             r = ro["with_measured_channel"][c]
             L.append(f"| {c} | " + " | ".join(f"{100 * (1 - r[k] / ro['nominal'][k]):.1f} %" for k in QUANTITIES) + " |")
-        L += ["", "**By flight regime** (training flights, quartiles of each variable): RMS of the two "
-              "channels with the largest nominal residual, nominal → with the effects.", ""]
-        worst = list(np.argsort(a["rms_train"]["before"])[::-1][:2])
-        L += ["| regime | quartile range | " + " | ".join(CHANNELS[c] for c in worst) + " |", "|---|---|" + "---|" * len(worst)]
+        worst = [CHANNELS.index(c) for c in a["regime_channels"]]
+        L += ["", f"**By flight regime** (training flights, quartiles of each variable): RMS of the two channels that "
+              f"carry the largest share of the SimErr ({', '.join(a['regime_channels'])}), nominal → with what was "
+              "found.", ""]
+        L += ["| regime | quartile range | " + " | ".join(f"{CHANNELS[c]} [{_unit(CHANNELS[c])}]" for c in worst)
+              + " |", "|---|---|" + "---|" * len(worst)]
         for k in REGIMES:
             g = a["regimes"][k]
             for i in range(4):
-                cells = [f"{g['before'][i][c]:.2f} → {g['after'][i][c]:.2f}" for c in worst]
+                cells = [f"{1e3 * g['before'][i][c]:.3g} → {1e3 * g['after'][i][c]:.3g}" for c in worst]
                 L.append(f"| {k} | {g['edges'][i]:.3g} – {g['edges'][i + 1]:.3g} | " + " | ".join(cells) + " |")
-        L += ["", "**By frequency band** (training flights): residual power per band, nominal → with the effects.", "",
+        L += ["", "**By frequency band** (training flights): share of each channel's nominal residual power in each "
+              "band, nominal → with what was found.", "",
               "| band | " + " | ".join(CHANNELS) + " |", "|---|" + "---|" * 6]
+        tot = [sum(a["bands"]["before"][i][c] for i in range(len(BANDS))) or 1.0 for c in range(6)]
         for i, (lo, hi) in enumerate(BANDS):
             L.append(f"| {lo:g}–{hi:g} Hz | " + " | ".join(
-                f"{a['bands']['before'][i][c]:.3f} → {a['bands']['after'][i][c]:.3f}" for c in range(6)) + " |")
+                f"{100 * a['bands']['before'][i][c] / tot[c]:.0f} % → {100 * a['bands']['after'][i][c] / tot[c]:.0f} %"
+                for c in range(6)) + " |")
         L.append("")
 
-    L += ["## Which effects were named, and why", "",
-          "Forward selection over the candidate library: each round, every candidate not yet named is fitted "
-          "together with those named (weighted least squares over the six channels, the nominal k_F and k_M "
-          "refitted alongside), leaving one training flight out at a time. *Held-out gain* is the drop of the "
-          "held-out residual sum of squares, as a share of the nominal residual's. A candidate is named when "
-          f"its gain is at least {result.threshold:g} and it helps on at least two thirds of the held-out "
-          "flights; the rounds stop when none does.", ""]
+    L += ["## How the verdicts were reached", "",
+          "Every score is held out: the training samples are cut into blocks of a few seconds, dealt to folds, and "
+          "each block's residual is measured with a fit on the other folds; channels are weighted by their noise "
+          "floor. Forward selection over the library: each round, every candidate not yet chosen is added to the "
+          "chosen ones. Under the hypothesis that a candidate explains nothing, its held-out gain on a block is as "
+          "likely negative as positive; the one-sided Wilcoxon signed-rank test over the blocks gives a p-value, "
+          f"multiplied by the number of candidates tried in the round (Bonferroni), which must be below "
+          f"α = {result.alpha:g}; its size (the root of its held-out gain per sample, in noise floors) must be at "
+          f"least {result.floor:g}. Coefficients with a physical sign (drag, rotor inertia) must not come out negative, and a correction must stay plausible (the inertia within 100 % of the nominal, the arm within 10 %, a rotor's spread within 25 %). "
+          "Candidates the chosen one is not significantly better than (the same test on the difference of their "
+          "held-out errors) make the finding ambiguous. A chosen entry must also explain at least half of what a "
+          "generic sparse fit (pysindy's STLSQ over products of body velocity, rates, thrust and height) captures "
+          "of the same disagreement; what remains is tested channel by channel with that generic fit, and is an "
+          "unnamed finding where it captures significantly more than nothing. The rotor-speed delay is searched "
+          "inside each fold.", ""]
     for i, table in enumerate(result.rounds, 1):
-        chosen = next((f.name for f in result.found if f.evidence.get("round") == i), None)
-        note = ""
-        if chosen and len(table) > 1 and table[1]["heldout_gain"] >= 0.9 * table[0]["heldout_gain"] > 0:
-            note = (f" `{table[1]['candidate']}` explains almost as much ({table[1]['heldout_gain']:.4f} against "
-                    f"{table[0]['heldout_gain']:.4f}): on these flights the data barely tell the two apart, and "
-                    f"once `{chosen}` is in, little is left for it.")
-        L += [f"Round {i}: " + (f"`{chosen}` named.{note}" if chosen else "no candidate clears the bar; the search stops."), "",
-              "| candidate | held-out gain | flights improved |", "|---|---|---|"]
+        L += [f"Round {i}:", "", "| candidate | held-out gain | size [noise floors] | z | p (adjusted) | blocks improved | "
+              "plausible | eligible |", "|---|---|---|---|---|---|---|---|"]
         for r in table:
-            extra = f" (delay {1e3 * r['delay']:.0f} ms)" if "delay" in r else ""
-            mark = " **named**" if r["candidate"] == chosen else ""
-            L.append(f"| {r['candidate']}{extra}{mark} | {r['heldout_gain']:.4f} | {r['folds_improved']} / {r['folds']} |")
+            L.append(f"| {r['candidate']} | {100 * r['heldout_gain']:.3f} % | {r['size']:.2f} | {r['z']:.1f} | {r['p']:.2g} | "
+                     f"{r['blocks_improved']} / {r['blocks']} | {'yes' if r['plausible'] else 'no'} | "
+                     f"{'yes' if r['eligible'] else 'no'} |")
         L.append("")
-    if result.found:
-        L += ["**The named effects**, in the order they were named (coefficients fitted on all training flights, "
-              "± jackknife standard error over the flights):", "",
-              "| effect | what it is | coefficients | explained share | held-out gain |", "|---|---|---|---|---|"]
-        for f in result.found:
-            coefs = "<br>".join(f"{k} = {v:.4g} ± {f.evidence['stderr'][k]:.2g}" for k, v in f.params.items())
-            L.append(f"| `{f.name}` | {LIBRARY[f.name].description} | {coefs} | "
-                     f"{100 * f.evidence['explained_share']:.1f} % | {100 * f.evidence['heldout_gain']:.1f} % |")
-        L.append("")
-    if a.get("scatter"):
-        L += ["![Residual against each named effect, before and after](figures/effects.png)", "",
-              "*Each named effect's fitted contribution against the residual of the channel it acts on most: before "
-              "(measured minus nominal, with the other named effects removed; along the dashed line when the "
-              "effect explains it) and after (what is left).*", ""]
     L += ["## Benchmark table", "", results_table_md(rows), ""]
     with atomic_file(out / "report.md") as tmp:
         tmp.write_text("\n".join(L))
+    summary = result_dict(result)
     with atomic_file(out / "result.json") as tmp:
-        tmp.write_text(json.dumps(result_dict(result), indent=1) + "\n")
+        tmp.write_text(json.dumps(summary, indent=1) + "\n")
+    with atomic_file(out / "verdicts.md") as tmp:
+        tmp.write_text(verdicts_markdown(summary["findings"]) + "\n")
+

@@ -41,7 +41,7 @@ def _rgb(color: str) -> list[int]:
     return [int(color[i:i + 2], 16) for i in (1, 3, 5)]
 
 
-def _blueprint(models: list[str]):
+def _blueprint(models: list[str], notes: bool = False):
     import rerun.blueprint as rrb
 
     series = [rrb.TimeSeriesView(origin=f"signals/{k}", name=f"{SIGNALS[k][0]} [{SIGNALS[k][1]}]")
@@ -51,7 +51,8 @@ def _blueprint(models: list[str]):
     return rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="world", name="trajectory, pose and rollouts"),
-            rrb.Vertical(rrb.Tabs(*series, name="signals"), rrb.Tabs(*errors, name="errors")),
+            rrb.Vertical(rrb.Tabs(*series, name="signals"), rrb.Tabs(*errors, name="errors"),
+                         *([rrb.TextDocumentView(origin="discovery", name="discovery's verdicts")] if notes else [])),
             column_shares=[1, 1],
         ),
         rrb.TimePanel(state="expanded"),
@@ -59,7 +60,8 @@ def _blueprint(models: list[str]):
     )
 
 
-def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Path, *, stride: int = 50) -> None:
+def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Path, *, stride: int = 50,
+                    verdicts: str | None = None) -> None:
     """Write ``path`` (``.rrd``) for one flight.
 
     Args:
@@ -68,6 +70,7 @@ def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Pa
             (:func:`nanosysid.benchmark.predictions`).
         path: Output file; written to a temporary name, then renamed.
         stride: Draw a 3D rollout from every ``stride``-th start.
+        verdicts: Discovery's verdicts (markdown), shown beside the signals.
     """
     import rerun as rr
 
@@ -78,7 +81,9 @@ def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Pa
     # the recording id is the flight's, so the same flight and models give the same file
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=f"{APPLICATION_ID}-{flight.name}", send_properties=False)
     with atomic_file(Path(path)) as tmp:
-        rec.save(tmp, default_blueprint=_blueprint(list(rollouts)))
+        rec.save(tmp, default_blueprint=_blueprint(list(rollouts), notes=verdicts is not None))
+        if verdicts is not None:
+            rec.log("discovery", rr.TextDocument(verdicts, media_type=rr.MediaType.MARKDOWN), static=True)
         every = [rr.TimeColumn("time", duration=t)]
         predicted = [rr.TimeColumn("time", duration=t[H:H + n])]
         at_starts = [rr.TimeColumn("time", duration=t[starts])]

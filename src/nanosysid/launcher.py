@@ -1,0 +1,145 @@
+"""One way to fan work out, in two places: processes on this machine, or array jobs on a SLURM
+cluster through submitit.
+
+Example::
+
+    from nanosysid import launcher
+    spec = launcher.Launcher.from_mapping({"kind": "local", "workers": 2})
+    squares = launcher.map_tasks(pow, [(2, 2), (3, 2)], spec)   # [4, 9], in the tasks' order
+
+A task is a picklable function and its arguments; the results come back in the tasks' order
+whatever the number of workers and wherever they ran, so the same tasks give the same results
+(every task pins its own thread count: a result never depends on how many tasks share a machine).
+On a cluster, every node needs the shared ``folder`` (submitit writes the pickled tasks, the
+logs and the results there) and the same virtual environment at the same path.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, Callable, Mapping, Sequence
+
+from nanosysid.errors import ConfigError
+
+__all__ = ["Launcher", "KINDS", "map_tasks", "slurm_executor"]
+
+KINDS = ("local", "slurm")
+
+
+@dataclass(frozen=True)
+class Launcher:
+    """Where tasks run (``conf/launcher/``).
+
+    Attributes:
+        kind: ``"local"`` (processes on this machine) or ``"slurm"`` (submitit array jobs).
+        workers: local: processes side by side (None: this machine's cores); slurm: array tasks
+            running at once.
+        threads: torch threads of each task.
+        partition, time_min, mem_gb, cpus_per_task: slurm: the job's partition, time limit
+            (minutes), memory (GB) and cores.
+        folder: slurm: a folder every node sees, for submitit's pickles, logs and results.
+        cluster: slurm: submitit's cluster; ``"slurm"`` on a cluster, ``"local"`` or ``"debug"``
+            (submitit's stand-ins, on this machine) to try the path without one.
+    """
+
+    kind: str = "local"
+    workers: int | None = None
+    threads: int = 1
+    partition: str | None = None
+    time_min: int = 60
+    mem_gb: float = 8.0
+    cpus_per_task: int = 1
+    folder: str = ".submitit"
+    cluster: str = "slurm"
+
+    @classmethod
+    def from_mapping(cls, d: Mapping[str, Any] | None, where: str = "launcher") -> "Launcher":
+        """A launcher from its config block; one clear error for an unknown key or a bad value."""
+        d = dict(d or {})
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(d) - known)
+        if unknown:
+            raise ConfigError(f"{where}: unknown key(s) {', '.join(unknown)} (known: {', '.join(sorted(known))})")
+        spec = cls(**d)
+        if spec.kind not in KINDS:
+            raise ConfigError(f"{where}.kind: {spec.kind!r} is not one of {', '.join(KINDS)}")
+        if spec.workers is not None and (not isinstance(spec.workers, int) or spec.workers < 1):
+            raise ConfigError(f"{where}.workers: {spec.workers!r} is not a positive whole number (or null: every core)")
+        for name in ("threads", "time_min", "cpus_per_task"):
+            if not isinstance(getattr(spec, name), int) or getattr(spec, name) < 1:
+                raise ConfigError(f"{where}.{name}: {getattr(spec, name)!r} is not a positive whole number")
+        if spec.cluster not in ("slurm", "local", "debug"):
+            raise ConfigError(f"{where}.cluster: {spec.cluster!r} is not one of slurm, local, debug")
+        return spec
+
+    @property
+    def processes(self) -> int:
+        """Local processes side by side."""
+        return self.workers or os.cpu_count() or 1
+
+
+def _pinned(fn: Callable[..., Any], threads: int, args: tuple) -> Any:
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(threads)
+    try:
+        return fn(*args)
+    finally:
+        torch.set_num_threads(before)
+
+
+def slurm_executor(spec: Launcher, *, name: str = "nanosysid"):
+    """The submitit executor of a ``slurm`` launcher: array jobs with its partition, time and
+    memory, at most ``workers`` running at once."""
+    try:
+        import submitit
+    except ImportError:  # pragma: no cover - submitit is in requirements.txt
+        raise ConfigError("launcher=slurm needs submitit: pip install -c constraints.txt submitit") from None
+    Path(spec.folder).mkdir(parents=True, exist_ok=True)
+    ex = submitit.AutoExecutor(folder=str(Path(spec.folder) / "%j"), cluster=spec.cluster)
+    params: dict[str, Any] = {"name": name, "timeout_min": spec.time_min, "mem_gb": spec.mem_gb,
+                              "cpus_per_task": spec.cpus_per_task, "slurm_array_parallelism": spec.workers or 64}
+    if spec.partition:
+        params["slurm_partition"] = spec.partition
+    ex.update_parameters(**params)
+    return ex
+
+
+def map_tasks(fn: Callable[..., Any], tasks: Sequence[tuple], spec: Launcher | None = None, *,
+              progress: bool = False, desc: str = "tasks", name: str = "nanosysid") -> list[Any]:
+    """``[fn(*t) for t in tasks]``, run where ``spec`` says; results in the tasks' order."""
+    from tqdm.auto import tqdm
+
+    spec = spec or Launcher()
+    tasks = [tuple(t) for t in tasks]
+    bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
+    try:
+        if spec.kind == "slurm":
+            ex = slurm_executor(spec, name=name)
+            jobs = ex.map_array(_pinned, [fn] * len(tasks), [spec.threads] * len(tasks), tasks)
+            out = []
+            for job in jobs:
+                out.append(job.result())
+                bar.update()
+            return out
+        if spec.processes == 1 or len(tasks) <= 1:
+            out = []
+            for t in tasks:
+                out.append(_pinned(fn, spec.threads, t))
+                bar.update()
+            return out
+        # spawned, not forked: a fork of a process that has run torch's thread pool can hang
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(min(spec.processes, len(tasks)), mp_context=ctx) as pool:
+            out = []
+            for r in pool.map(_pinned, [fn] * len(tasks), [spec.threads] * len(tasks), tasks):
+                out.append(r)
+                bar.update()
+            return out
+    finally:
+        bar.close()

@@ -1,0 +1,68 @@
+"""The campaign's records: the summary as text, and one table row per world."""
+
+from __future__ import annotations
+
+import json
+from typing import Any, Sequence
+
+import pandas as pd
+
+__all__ = ["summary_markdown", "worlds_table"]
+
+
+def _pct(x) -> str:
+    return "–" if x is None else f"{100 * x:.0f} %"
+
+
+def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
+    """The campaign's figures, readable: recall per effect and strength bin, precision, clean and
+    out-of-library worlds, gap closed, and the plain SINDy model beside."""
+    L = ["# Discovery over hidden worlds", "",
+         f"{summary['worlds']} worlds, {summary['failed']} where the augmented model diverged on the test flight.", "",
+         f"Recall: worlds where a library entry that describes the effect is named or among an ambiguous "
+         f"verdict's alternatives, among the worlds where the effect moves the nominal model's SimErr by more than "
+         f"{100 * relevant:.0f} % (in brackets: among all worlds with the effect).", "",
+         "| effect | " + " | ".join(f"strength {lo:g}–{hi:g}" for lo, hi in summary["strength_bins"]) + " |",
+         "|---|" + "---|" * len(summary["strength_bins"])]
+    for e, bins in sorted(summary["recall_counts"].items()):
+        cells = []
+        for lo, hi in summary["strength_bins"]:
+            c = bins.get(f"{lo:g}-{hi:g}")
+            cells.append("–" if c is None else f"{c['hit_relevant']}/{c['relevant']} ({c['hit']}/{c['worlds']})")
+        L.append(f"| {e} | " + " | ".join(cells) + " |")
+    L += ["",
+          f"- named verdicts: {summary['named']}, right {_pct(summary['precision'])}",
+          f"- clean worlds: {summary['clean_worlds']}, without any finding {_pct(summary['clean_without_finding'])}",
+          f"- worlds with an effect outside the library: {summary['out_of_library_worlds']}, without a false name "
+          f"{_pct(summary['out_of_library_without_false_name'])}",
+          f"- worlds with an effect of the state: {summary['state_worlds']}, at least half the gap closed in "
+          f"{_pct(summary['half_gap_closed'])} (median {_pct(summary['gap_closed_median'])})",
+          f"- plain SINDy: median gap closed {_pct(summary['sindy_gap_closed_median'])}, "
+          f"{summary['sindy_terms_mean']:.1f} terms on average; discovery closes more of the gap in "
+          f"{_pct(summary['beats_sindy'])} of the worlds", ""]
+    return "\n".join(L)
+
+
+def worlds_table(rows: Sequence[dict[str, Any]], effects: Sequence[str]) -> pd.DataFrame:
+    """One row per world: its seed, each effect's strength (0: absent), the user effect, the
+    verdicts, each effect's impact on the nominal SimErr, the gap closed and the SimErr of every
+    model (nominal, discovered, oracle, sindy)."""
+    out = []
+    for r in rows:
+        row: dict[str, Any] = {"world": r["world"], "seed": r["seed"]}
+        row.update({f"strength_{e}": float(r["effects"].get(e, 0.0)) for e in effects})
+        row["user"] = r["user"] or ""
+        row["user_strength"] = float(r["user_strength"])
+        row["error"] = r.get("error", "")
+        for k in ("named", "ambiguous", "unnamed", "false_named"):
+            row[k] = json.dumps(r.get(k, []))
+        row["recalled"] = json.dumps(r.get("recalled", {}), sort_keys=True)
+        row.update({f"impact_{e}": float(r.get("impact", {}).get(e, float("nan"))) for e in effects})
+        for k in ("gap_closed", "sindy_gap_closed", "gap_share"):
+            v = r.get(k)
+            row[k] = float("nan") if v is None else float(v)
+        row["sindy_terms"] = int(r.get("sindy_terms", 0))
+        for model, scores in r.get("simerr", {}).items():
+            row.update({f"simerr_{model}_{q}": float(v) for q, v in scores.items()})
+        out.append(row)
+    return pd.DataFrame(out)

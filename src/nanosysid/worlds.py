@@ -1,0 +1,295 @@
+"""The worlds check: discovery on many simulated worlds whose truth is hidden from it.
+
+Each world hides 0 to 3 of the simulator's effects (strengths log-uniform in 0.3 to 3) and,
+in some worlds, a user-supplied effect that no library entry describes. Discovery
+(:func:`nanosysid.discover.run`) sees only the flights; this module, the judge, knows the
+world and scores the verdicts against :data:`DESCRIBED_BY` (the README's table, fixed before
+any run): which library entries describe which world effect.
+
+Example::
+
+    from nanosysid import worlds
+    draws = worlds.draw(60, seed=0)
+    rows = worlds.check(draws, launcher=Launcher(workers=2))   # one row per world
+                                               # (nanosysid.launcher.Launcher)
+    summary = worlds.summarize(rows)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence
+
+import numpy as np
+import torch
+
+from nanosysid import so3
+
+__all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "World", "draw", "simulate", "judge", "check", "summarize",
+           "short_flights_config", "STRENGTH_BINS"]
+
+# world effect -> the library entries that describe it (any of its forms); a "named" verdict
+# is correct when the world has an effect it describes
+DESCRIBED_BY: dict[str, frozenset[str]] = {
+    "rotor_drag": frozenset({"induced_drag", "linear_drag", "induced_drag_moment", "drag_moment", "induced_rate_damping",
+                             "rate_damping", "inflow_thrust_loss"}),
+    "body_drag": frozenset({"quadratic_drag", "linear_drag", "induced_drag"}),
+    "telemetry_delay": frozenset({"input_delay"}),
+    "com_offset": frozenset({"cg_offset"}),
+    "motor_asymmetry": frozenset({"rotor_spread"}),
+    "rotor_inertia": frozenset({"rotor_gyro"}),
+    "inertia_offset": frozenset({"inertia", "arm"}),
+    "turbulence": frozenset(),
+    "unsteady_thrust": frozenset(),
+}
+STRENGTH_BINS = ((0.3, 0.7), (0.7, 1.5), (1.5, 3.0))
+TIME_VARYING = ("turbulence", "unsteady_thrust")  # no model of the state can know them
+TRAIN = ("square", "random", "chirp")
+TEST = "melon"
+K_F = 3.72e-8  # N s²/rad², the nominal thrust coefficient, for user effects that scale with thrust
+
+
+def _v_body(x):
+    return so3.quat_rotate(so3.quat_conj(x[..., 6:10]), x[..., 3:6])
+
+
+def _thrust_sag(s: float):
+    # the battery sags: thrust falls by 4 % x s over 20 s of flight
+    def fn(t, x, om, om_dot):
+        f = torch.zeros_like(x[..., :3])
+        f[..., 2] = -0.04 * s * K_F * (om ** 2).sum(-1) * torch.clamp(t, min=0.0) / 20.0
+        return f, torch.zeros_like(f)
+    return fn
+
+
+def _height_roll(s: float):
+    # a flow off the arena's wall: a roll torque growing with height
+    def fn(t, x, om, om_dot):
+        tau = torch.zeros_like(x[..., :3])
+        tau[..., 0] = 2e-5 * s * (x[..., 2] - 1.5)
+        return torch.zeros_like(tau), tau
+    return fn
+
+
+def _yaw_coupling(s: float):
+    # an airframe asymmetry: a yaw torque from the horizontal velocity's two components
+    def fn(t, x, om, om_dot):
+        v = _v_body(x)
+        tau = torch.zeros_like(v)
+        tau[..., 2] = 4e-6 * s * v[..., 0] * v[..., 1]
+        return torch.zeros_like(v), tau
+    return fn
+
+
+# user-supplied effects that no library entry describes: name -> strength -> extra_wrench
+OUT_OF_LIBRARY: dict[str, Callable[[float], Callable]] = {
+    "thrust_sag": _thrust_sag, "height_roll": _height_roll, "yaw_coupling": _yaw_coupling}
+
+
+@dataclass(frozen=True)
+class World:
+    """One hidden world: the simulator's effects, an optional user effect, the seed."""
+
+    index: int
+    effects: dict[str, float]
+    user: str | None = None
+    user_strength: float = 0.0
+    seed: int = 0
+
+    @property
+    def extra_wrench(self):
+        return None if self.user is None else OUT_OF_LIBRARY[self.user](self.user_strength)
+
+    @property
+    def clean(self) -> bool:
+        return not self.effects and self.user is None
+
+
+def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3) -> list[World]:
+    """``n`` worlds drawn from ``seed``: 0 to ``max_effects`` simulator effects each, strengths
+    log-uniform in 0.3..3; a share ``user_share`` also get a user effect outside the library."""
+    from nanosysid.sim import EFFECTS
+
+    rng = np.random.default_rng(seed)
+    names = sorted(EFFECTS)
+    out = []
+    for i in range(n):
+        k = int(rng.integers(0, max_effects + 1))
+        chosen = sorted(rng.choice(names, size=k, replace=False).tolist()) if k else []
+        effects = {e: float(f"{math.exp(rng.uniform(math.log(0.3), math.log(3.0))):.3g}") for e in chosen}
+        user, us = None, 0.0
+        if rng.random() < user_share:
+            user = str(rng.choice(sorted(OUT_OF_LIBRARY)))
+            us = float(f"{math.exp(rng.uniform(math.log(0.3), math.log(3.0))):.3g}")
+        out.append(World(i, effects, user, us, int(rng.integers(1, 2**31 - 1))))
+    return out
+
+
+def short_flights_config(duration: float = 20.0):
+    """The simulator's config with every trajectory ``duration`` seconds long."""
+    from nanosysid.sim import SimConfig
+
+    return SimConfig.from_mapping({"trajectories": {
+        "square": {},
+        "random": {"box": [2.4, 2.4, 1.2], "duration": duration, "n_points": max(4, int(round(0.9 * duration)))},
+        "melon": {"ramp_time": 0.15, "duration": duration, "circle_time": 0.75 * duration,
+                  "return_time": 0.15 * duration},
+        "chirp": {"duration": duration},
+    }})
+
+
+def simulate(worlds: Sequence[World], cfg=None, *, progress: bool = False) -> dict[int, tuple[list, dict]]:
+    """Every world's flights (training ones, then the test one), and its test flight flown again
+    without each of its simulator effects (same seed: the same noise and realisations), all
+    worlds in one batch. A flight is named ``<trajectory>_w<world>_run1`` (the oracle finds its
+    realisation by it). Returns world index -> (flights, effect -> test flight without it)."""
+    from nanosysid import sim
+
+    cfg = cfg or short_flights_config()
+    specs, keys = [], []
+    for w in worlds:
+        for tr in (*TRAIN, TEST):
+            specs.append(sim.FlightSpec(trajectory=tr, run=1, effects=w.effects, seed=w.seed,
+                                        extra_wrench=w.extra_wrench, name=f"{tr}_w{w.index}_run1"))
+            keys.append((w.index, None))
+        for e in w.effects:
+            rest = {k: v for k, v in w.effects.items() if k != e}
+            specs.append(sim.FlightSpec(trajectory=TEST, run=1, effects=rest, seed=w.seed,
+                                        extra_wrench=w.extra_wrench, name=f"{TEST}_w{w.index}_run1"))
+            keys.append((w.index, e))
+    flights = sim.simulate_flights(specs, cfg=cfg, progress=progress)
+    out: dict[int, tuple[list, dict]] = {w.index: ([], {}) for w in worlds}
+    for (i, e), f in zip(keys, flights):
+        if e is None:
+            out[i][0].append(f)
+        else:
+            out[i][1][e] = f
+    return out
+
+
+def _relative_gap(before, after, oracle) -> float | None:
+    """Share of the nominal-to-oracle SimErr gap closed, each quantity relative to the nominal's."""
+    gap = sum((before[q] - oracle[q]) / before[q] for q in before)
+    if gap <= 0:
+        return None
+    return float(sum((before[q] - after[q]) / before[q] for q in before) / gap)
+
+
+def judge(world: World, flights: Sequence, without: dict | None = None, *, horizon: int = 50) -> dict[str, Any]:
+    """Discovery on one world's flights, and its verdicts scored against the world; ``without``
+    (effect -> the test flight flown without it) gives each effect's impact on the nominal SimErr."""
+    from nanosysid import benchmark, discover, sim
+    from nanosysid.errors import PredictionError
+
+    train = [f for f in flights if f.trajectory != TEST]
+    test = [f for f in flights if f.trajectory == TEST]
+    oracle = sim.oracle(world.effects, seed=world.seed, extra_wrench=world.extra_wrench)
+    try:
+        r = discover.run(train, test, oracle=oracle, sindy=True, analysis=False, horizon=horizon)
+    except PredictionError as e:  # the augmented model diverges on the test flight: a failure of discovery
+        return {"world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
+                "user_strength": world.user_strength, "error": str(e)}
+    # each effect's impact: how far the nominal model's SimErr on the test flight moves when the
+    # world loses that effect (largest relative change over the four quantities)
+    impact = {}
+    for e, flight in (without or {}).items():
+        other = benchmark.evaluate(r.nominal, [flight], horizon=horizon).simerr
+        impact[e] = float(max(abs(r.before.simerr[q] - other[q]) / r.before.simerr[q] for q in other))
+    # the gap a model of the state can close: to the oracle that knows every effect but the
+    # time-varying ones (turbulence, the thrust fluctuation)
+    state = {k: v for k, v in world.effects.items() if k not in TIME_VARYING}
+    reachable = benchmark.evaluate(sim.oracle(state, seed=world.seed, extra_wrench=world.extra_wrench), test,
+                                   horizon=horizon).simerr if state != world.effects else r.oracle.simerr
+    named = [f.name for f in r.findings if f.verdict == "named"]
+    ambiguous = [list(f.alternatives) for f in r.findings if f.verdict == "ambiguous"]
+    described = set().union(*(DESCRIBED_BY[e] for e in world.effects)) if world.effects else set()
+    offered = set(named) | {a for alts in ambiguous for a in alts}
+    return {
+        "world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
+        "user_strength": world.user_strength,
+        "named": named, "ambiguous": ambiguous, "unnamed": [list(f.channels) for f in r.findings if f.verdict == "unnamed"],
+        "false_named": [n for n in named if n not in described],
+        "recalled": {e: bool(DESCRIBED_BY[e] & offered) for e in world.effects},
+        "impact": impact,
+        "simerr": {"nominal": r.before.simerr, "discovered": r.after.simerr, "oracle": r.oracle.simerr,
+                   "sindy": r.sindy["simerr"]},
+        "gap_closed": _relative_gap(r.before.simerr, r.after.simerr, reachable),
+        "sindy_gap_closed": _relative_gap(r.before.simerr, r.sindy["simerr"], reachable),
+        "sindy_terms": len(r.sindy["terms"]),
+        "gap_share": float(sum((r.before.simerr[q] - reachable[q]) / r.before.simerr[q] for q in r.before.simerr) / 4),
+    }
+
+
+def _check_chunk(worlds: Sequence[World], cfg, horizon: int) -> list[dict[str, Any]]:
+    """One task of the launcher: a few worlds simulated in one batch, then judged one by one."""
+    flights = simulate(worlds, cfg)
+    return [judge(w, *flights[w.index], horizon=horizon) for w in worlds]
+
+
+def check(worlds: Sequence[World], *, launcher=None, cfg=None, horizon: int = 50, chunk: int = 4,
+          progress: bool = True) -> list[dict[str, Any]]:
+    """Simulate and judge every world, ``chunk`` worlds to a task of ``launcher``
+    (:class:`nanosysid.launcher.Launcher`; None: one process here). The rows come back in the
+    worlds' order, the same whatever the launcher and its number of workers."""
+    from nanosysid.launcher import map_tasks
+
+    cfg = cfg or short_flights_config()
+    tasks = [(list(worlds[s:s + chunk]), cfg, horizon) for s in range(0, len(worlds), chunk)]
+    parts = map_tasks(_check_chunk, tasks, launcher, progress=progress, desc=f"worlds ({chunk} a task)",
+                      name="nanosysid-campaign")
+    return [row for part in parts for row in part]
+
+
+def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict[str, Any]:
+    """The worlds check's figures: recall per effect and strength bin (among worlds where the
+    effect moves the nominal SimErr by more than ``relevant``), precision of named verdicts,
+    clean worlds without a finding, out-of-library worlds without a false name, gap closed, and
+    the plain SINDy model beside."""
+    failed = [r for r in rows if "error" in r]
+    rows = [r for r in rows if "error" not in r]
+    recall: dict[str, dict[str, list[int]]] = {}
+    for r in rows:
+        for e, s in r["effects"].items():
+            if not DESCRIBED_BY[e]:
+                continue
+            b = next((f"{lo:g}-{hi:g}" for lo, hi in STRENGTH_BINS if lo <= s <= hi), "other")
+            cell = recall.setdefault(e, {}).setdefault(b, [0, 0, 0, 0])  # hit, n (relevant); hit, n (all)
+            cell[2] += r["recalled"][e]
+            cell[3] += 1
+            if r["impact"].get(e, 0.0) > relevant:
+                cell[0] += r["recalled"][e]
+                cell[1] += 1
+    named = sum(len(r["named"]) for r in rows)
+    false = sum(len(r["false_named"]) for r in rows)
+    clean = [r for r in rows if not r["effects"] and r["user"] is None]
+    ool = [r for r in rows if r["user"] is not None]
+    state = [r for r in rows if r["gap_closed"] is not None and r["gap_share"] > 0.05
+             and any(e not in TIME_VARYING for e in r["effects"])]
+    both = [r for r in rows if r["gap_closed"] is not None and r["sindy_gap_closed"] is not None and r["gap_share"] > 0.05]
+    relevant_hits = {e: {b: (c[0] / c[1] if c[1] else None) for b, c in bins.items()} for e, bins in recall.items()}
+    overall = {e: (sum(c[0] for c in bins.values()) / max(1, sum(c[1] for c in bins.values())))
+               for e, bins in recall.items()}
+    return {
+        "worlds": len(rows) + len(failed),
+        "relevant": relevant,
+        "strength_bins": [list(b) for b in STRENGTH_BINS],
+        "failed": len(failed),
+        "recall_relevant": relevant_hits,
+        "recall_relevant_overall": overall,
+        "recall_counts": {e: {b: {"hit_relevant": c[0], "relevant": c[1], "hit": c[2], "worlds": c[3]}
+                              for b, c in bins.items()} for e, bins in recall.items()},
+        "named": named,
+        "precision": None if not named else 1 - false / named,
+        "clean_worlds": len(clean),
+        "clean_without_finding": None if not clean else sum(not r["named"] and not r["ambiguous"] and not r["unnamed"]
+                                                           for r in clean) / len(clean),
+        "out_of_library_worlds": len(ool),
+        "out_of_library_without_false_name": None if not ool else sum(not r["false_named"] for r in ool) / len(ool),
+        "state_worlds": len(state),
+        "half_gap_closed": None if not state else sum(r["gap_closed"] >= 0.5 for r in state) / len(state),
+        "gap_closed_median": None if not state else float(np.median([r["gap_closed"] for r in state])),
+        "sindy_gap_closed_median": None if not both else float(np.median([r["sindy_gap_closed"] for r in both])),
+        "beats_sindy": None if not both else sum(r["gap_closed"] > r["sindy_gap_closed"] for r in both) / len(both),
+        "sindy_terms_mean": float(np.mean([r["sindy_terms"] for r in rows])) if rows else None,
+    }

@@ -1,0 +1,57 @@
+"""campaign: discovery over many hidden worlds (the worlds check), fanned out by the launcher;
+its figures, one row per world, and the figures' plots."""
+
+import json
+import logging
+from pathlib import Path
+
+from omegaconf import DictConfig
+
+from nanosysid import worlds
+from nanosysid.dataio import atomic_dir, atomic_file
+from nanosysid.effects import LIBRARY
+from nanosysid.errors import ConfigError
+from nanosysid.launcher import Launcher
+from nanosysid.report.campaign import summary_markdown, worlds_table
+from nanosysid.sim import EFFECTS
+from nanosysid.viz.campaign import confusion_figure, gap_figure, recall_figure
+from stages.common import plain, run_stage
+
+log = logging.getLogger("nanosysid.campaign")
+
+
+def main(cfg: DictConfig) -> dict:
+    """Draw ``campaign.worlds`` worlds from ``campaign.seed``, run the worlds check on
+    ``launcher``, and write into ``campaign.out_dir`` (replaced atomically): ``summary.json``
+    and ``summary.md``, ``worlds.parquet``, ``recall.png``, ``confusion.png``, ``gap.png``."""
+    c = cfg.campaign
+    n, chunk = int(c.worlds), int(c.chunk)
+    if n < 1 or chunk < 1:
+        raise ConfigError(f"campaign.worlds ({n}) and campaign.chunk ({chunk}) must be positive whole numbers")
+    spec = Launcher.from_mapping(plain(cfg.launcher))
+    draws = worlds.draw(n, int(c.seed), user_share=float(c.user_share), max_effects=int(c.max_effects))
+    rows = worlds.check(draws, launcher=spec, cfg=worlds.short_flights_config(float(c.duration)),
+                        horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
+    relevant = float(c.relevant)
+    summary = worlds.summarize(rows, relevant=relevant)
+    effects = sorted(EFFECTS)
+    table = worlds_table(rows, effects)
+    described = [e for e in effects if worlds.DESCRIBED_BY[e]]
+    out = Path(c.out_dir)
+    with atomic_dir(out) as tmp:
+        with atomic_file(tmp / "summary.json") as f:
+            f.write_text(json.dumps(summary, indent=1, sort_keys=True) + "\n")
+        with atomic_file(tmp / "summary.md") as f:
+            f.write_text(summary_markdown(summary, relevant=relevant))
+        with atomic_file(tmp / "worlds.parquet") as f:
+            table.to_parquet(f, index=False)
+        recall_figure(table, described, summary["strength_bins"], relevant, tmp / "recall.png")
+        confusion_figure(table, effects, list(LIBRARY), tmp / "confusion.png")
+        gap_figure(table, tmp / "gap.png")
+    log.info("campaign: %d worlds on %s; precision %s, clean without a finding %s", n, spec.kind,
+             summary["precision"], summary["clean_without_finding"])
+    return summary
+
+
+if __name__ == "__main__":
+    raise SystemExit(run_stage(main, description=__doc__))

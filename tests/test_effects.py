@@ -1,0 +1,99 @@
+"""The library's columns against physics worked out independently: a rigid body with another
+inertia, the generic terms' products evaluated directly, the noise floor of pure noise."""
+
+import numpy as np
+import pytest
+import torch
+
+from nanosysid import effects
+from nanosysid.discover.generic import TermLibrary
+from nanosysid.vehicle import Vehicle
+
+
+def _state(rng, n):
+    x = np.zeros((n, 13))
+    x[:, 0:3] = rng.normal(0, 1, (n, 3)) + [0, 0, 1.5]
+    x[:, 3:6] = rng.normal(0, 1.5, (n, 3))
+    q = rng.normal(0, 1, (n, 4))
+    x[:, 6:10] = q / np.linalg.norm(q, axis=1, keepdims=True)
+    x[:, 10:13] = rng.normal(0, 3, (n, 3))
+    return x
+
+
+def test_inertia_columns_are_the_first_order_change_of_the_measured_torque():
+    # a body of inertia J + dJ driven by the rotor torque tau: dw/dt = (J + dJ)^-1 (tau - w x (J + dJ) w);
+    # the torque measured with the nominal J is J dw/dt + w x J w. Its difference from tau, for a
+    # dJ of 1e-3 J, must be the inertia columns times the correction up to second order
+    rng = np.random.default_rng(0)
+    v = Vehicle()
+    n = 64
+    x = torch.from_numpy(_state(rng, n))
+    om = torch.from_numpy(rng.uniform(1500, 2500, (n, 4)))
+    J = np.array(v.inertia)
+    dJ = 1e-3 * J * np.array([1.0, -2.0, 1.5])
+    kl = v.k_f * v.arm
+    s = om.numpy() ** 2
+    tau = np.column_stack([kl * (-s[:, 0] - s[:, 1] + s[:, 2] + s[:, 3]),
+                           kl * (-s[:, 0] + s[:, 1] + s[:, 2] - s[:, 3]),
+                           v.k_m * (-s[:, 0] + s[:, 1] - s[:, 2] + s[:, 3])])
+    w = x[:, 10:13].numpy()
+    Jt = J + dJ
+    w_dot = (tau - np.cross(w, Jt * w)) / Jt
+    residual = J * w_dot + np.cross(w, J * w) - tau
+    cols = effects.features(["inertia"], x, om, torch.zeros_like(om), v).numpy()  # (n, 6, 3)
+    c = dJ * J / (J + dJ)  # the columns' coefficient (the entry's physical map inverted by hand)
+    predicted = cols[:, 3:, :] @ c
+    assert np.abs(predicted - residual).max() < 1e-2 * np.abs(residual).max()
+    assert effects.LIBRARY["inertia"].values(c, v) == pytest.approx(dJ.tolist(), rel=1e-9)
+
+
+def test_rotor_spread_is_each_rotor_off_by_its_own_share():
+    # rotors of k_F (1 + d_i), k_M (1 + d_i) with the d_i averaging zero: the extra thrust and
+    # torques, rotor by rotor from the mixer written out by hand (rotors at (+-L/sqrt2, +-L/sqrt2),
+    # spins + - + -), are the entry's columns times the coefficients whose physical values are d
+    rng = np.random.default_rng(2)
+    v = Vehicle()
+    n = 32
+    x = torch.from_numpy(_state(rng, n))
+    om = torch.from_numpy(rng.uniform(1500, 2500, (n, 4)))
+    d = np.array([0.03, -0.02, 0.025, -0.035])
+    d -= d.mean()
+    s = om.numpy() ** 2 * d
+    kl = v.k_f * v.arm
+    extra = np.column_stack([v.k_f * s.sum(1), kl * (-s[:, 0] - s[:, 1] + s[:, 2] + s[:, 3]),
+                             kl * (-s[:, 0] + s[:, 1] + s[:, 2] - s[:, 3]), v.k_m * (-s[:, 0] + s[:, 1] - s[:, 2] + s[:, 3])])
+    e = effects.LIBRARY["rotor_spread"]
+    # the coefficients whose physical values are d: the map is linear, solve it column by column
+    basis = np.array([e.values(row, v) for row in np.eye(e.n_columns)]).T  # (4, columns)
+    a, *_ = np.linalg.lstsq(basis, d, rcond=None)
+    assert e.values(a, v) == pytest.approx(d.tolist(), abs=1e-12)
+    cols = effects.features(["rotor_spread"], x, om, torch.zeros_like(om), v).numpy()  # (n, 6, 3)
+    assert np.allclose(cols[:, 2:, :] @ a, extra, rtol=1e-9, atol=1e-12 * np.abs(extra).max())
+    assert np.allclose(cols[:, :2, :], 0.0)
+
+
+def test_generic_terms_back_in_raw_products_are_the_same_function():
+    rng = np.random.default_rng(1)
+    names = list(effects.TERM_SIGNALS)
+    sig = rng.normal([1, 0, 0, 0, 0, 0, 0.4, 1.5][:len(names)], 1.0, (500, len(names)))
+    lib = TermLibrary(sig)
+    coef = np.zeros(len(lib.names))
+    coef[rng.choice(len(coef), 6, replace=False)] = rng.normal(0, 1, 6)
+    raw = lib.raw(coef)
+    direct = np.zeros(len(sig))
+    for k, name in enumerate(lib.names):
+        if raw[k]:
+            term = np.ones(len(sig))
+            for f in ([] if name == "1" else name.split("*")):
+                term = term * sig[:, names.index(f)]
+            direct += raw[k] * term
+    assert np.allclose(lib(sig) @ coef, direct, rtol=1e-9, atol=1e-9)
+
+
+def test_physical_signs_and_kinds():
+    # a drag coefficient is positive; corrections change the vehicle, they add no wrench
+    for name in ("linear_drag", "induced_drag", "quadratic_drag", "rate_damping", "rotor_gyro"):
+        assert all(s == 1 for s in effects.LIBRARY[name].signs), name
+    assert {n for n, e in effects.LIBRARY.items() if e.kind == "correction"} == {"inertia", "arm"}
+    v = effects.apply_corrections(Vehicle(), {"inertia": [1e-6, 2e-6, 3e-6], "arm": [0.001]})
+    assert v.inertia == pytest.approx((2.4951e-5, 2.5951e-5, 3.5347e-5)) and v.arm == pytest.approx(0.03635)
