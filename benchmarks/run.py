@@ -20,7 +20,7 @@ import platform  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-BENCHMARKS = ("simulate_speed", "data_pipeline_speed", "evaluate_speed", "discover_speed", "visualize_speed")
+BENCHMARKS = ("simulate_speed", "simulate_batch", "data_pipeline_speed", "evaluate_speed", "discover_speed", "visualize_speed")
 FORMAT = "nanosysid-bench-1"
 
 

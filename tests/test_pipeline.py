@@ -338,31 +338,56 @@ def test_unknown_model_is_one_clear_error(tiny, capsys):
     assert "models.lstmx: no such model" in capsys.readouterr().err
 
 
-@pytest.mark.slow
-def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
-    repo = tmp_path / "repo"
-    repo.mkdir()
-    for item in ("dvc.yaml", "params.yaml", "conf", "stages", "src", ".dvc", ".dvcignore", ".gitignore"):
-        src = ROOT / item
-        (shutil.copytree if src.is_dir() else shutil.copy)(src, repo / item)
-    shutil.rmtree(repo / ".dvc" / "tmp", ignore_errors=True)
-    shutil.rmtree(repo / ".dvc" / "cache", ignore_errors=True)
+class DvcRepo:
+    """A copy of the project as its own git and DVC repository, with its own cache."""
 
-    def sh(*cmd):
-        r = subprocess.run(cmd, cwd=repo, env=venv_env, capture_output=True, text=True)
+    def __init__(self, root: Path, env: dict):
+        self.root, self.env = root, env
+        root.mkdir(parents=True)
+        for item in ("dvc.yaml", "params.yaml", "conf", "stages", "src", ".dvc", ".dvcignore", ".gitignore"):
+            src = ROOT / item
+            (shutil.copytree if src.is_dir() else shutil.copy)(src, root / item)
+        shutil.rmtree(root / ".dvc" / "tmp", ignore_errors=True)
+        shutil.rmtree(root / ".dvc" / "cache", ignore_errors=True)
+        (root / ".dvc" / "config.local").unlink(missing_ok=True)
+        self.sh("git", "init", "-q")
+        self.commit("base")
+
+    def sh(self, *cmd, cwd=None):
+        r = subprocess.run(cmd, cwd=cwd or self.root, env=self.env, capture_output=True, text=True)
         assert r.returncode == 0, f"{cmd}: {r.stdout}\n{r.stderr}"
         return r.stdout
 
-    sh("git", "init", "-q")
-    sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "add", "-A")
-    sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "base")
-    small = [a for o in TINY_SIM for a in ("-S", o)]
-    out = sh("dvc", "exp", "run", *small)
-    assert "Running stage 'evaluate@physics'" in out and "Running stage 'evaluate@naive'" in out
-    out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=2")
+    def commit(self, message, cwd=None):
+        self.sh("git", "add", "-A", cwd=cwd)
+        self.sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", message, cwd=cwd)
+
+
+# the campaign stage at its smallest: one world
+TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=6.0"]
+SMALL = [a for o in TINY_SIM + TINY_CAMPAIGN for a in ("-S", o)]
+
+
+@pytest.fixture(scope="module")
+def dvc_repo(tmp_path_factory):
+    import os
+    import sys
+
+    env = dict(os.environ, PATH=str(Path(sys.executable).parent) + os.pathsep + os.environ.get("PATH", ""),
+               DVC_NO_ANALYTICS="1", PYTHONHASHSEED="0")
+    repo = DvcRepo(tmp_path_factory.mktemp("dvc") / "repo", env)
+    out = repo.sh("dvc", "exp", "run", *SMALL)
+    assert "Running stage 'evaluate@physics'" in out and "Running stage 'campaign'" in out
+    return repo
+
+
+@pytest.mark.slow
+def test_dvc_reruns_only_the_model_whose_settings_changed(dvc_repo):
+    sh = dvc_repo.sh
+    out = sh("dvc", "exp", "run", *SMALL, "-S", "models.physics.substeps=2")
     assert "Running stage 'evaluate@physics':" in out
     for other in ("simulate", "extract", "sync", "filter", "split", "identify", "evaluate@naive", "evaluate@oracle",
-                  "train@lstm", "evaluate@lstm"):
+                  "train@lstm", "evaluate@lstm", "campaign"):
         assert f"Running stage '{other}'" not in out
     # evaluate@physics, its export and MCU run, the report, the comparison with the paper and the
     # recordings that show every model
@@ -370,15 +395,51 @@ def test_dvc_reruns_only_the_model_whose_settings_changed(tmp_path, venv_env):
         assert f"Running stage '{stage}'" in out
     assert out.count("Running stage") == 6, out
     # back to the earlier value: restored from the run cache, not recomputed
-    out = sh("dvc", "exp", "run", *small, "-S", "models.physics.substeps=1")
+    out = sh("dvc", "exp", "run", *SMALL, "-S", "models.physics.substeps=1")
     assert "Stage 'evaluate@physics' is cached - skipping run" in out
     assert "Running stage" not in out
+    # the launcher is no parameter of the campaign: its results are the same wherever it runs
+    out = sh("dvc", "exp", "run", *SMALL, "-S", "launcher=slurm")
+    assert "Running stage" not in out
     # a learned model: retrains and re-evaluates that model alone, and comes back from the cache
-    out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.network.hidden=48")
+    out = sh("dvc", "exp", "run", *SMALL, "-S", "models.lstm.network.hidden=48")
     assert "Running stage 'train@lstm'" in out and "Running stage 'evaluate@lstm'" in out
     assert out.count("Running stage") == 7, out  # its export, MCU run, the report, comparison and recordings
-    out = sh("dvc", "exp", "run", *small, "-S", "models.lstm.network.hidden=62")
+    out = sh("dvc", "exp", "run", *SMALL, "-S", "models.lstm.network.hidden=62")
     assert "Stage 'train@lstm' is cached - skipping run" in out and "Running stage" not in out
+
+
+@pytest.mark.slow
+def test_queued_experiments_run_side_by_side_and_reuse_the_run_cache(dvc_repo):
+    sh = dvc_repo.sh
+    for hidden in (40, 44):
+        sh("dvc", "exp", "run", "--queue", *SMALL, "-S", f"models.lstm.network.hidden={hidden}", "-n", f"h{hidden}")
+    sh("dvc", "exp", "run", "--run-all", "-j", "2")
+    status = sh("dvc", "queue", "status")
+    assert status.count("Success") == 2 and "Failed" not in status, status
+    # both reused the pipeline's run cache: nothing before training ran again
+    logs = sh("dvc", "queue", "logs", "h40") + sh("dvc", "queue", "logs", "h44")
+    for stage in ("simulate", "extract", "sync", "filter", "split", "identify", "campaign"):
+        assert f"Running stage '{stage}'" not in logs, stage
+    assert logs.count("Running stage 'train@lstm'") == 2
+
+
+@pytest.mark.slow
+def test_outputs_and_run_cache_round_trip_through_a_remote(dvc_repo, tmp_path):
+    sh = dvc_repo.sh
+    remote = tmp_path / "remote"
+    sh("dvc", "remote", "add", "-d", "store", str(remote))
+    dvc_repo.commit("results")
+    sh("dvc", "push", "--run-cache")
+    clone = tmp_path / "clone"
+    sh("git", "clone", "-q", str(dvc_repo.root), str(clone))
+    sh("dvc", "pull", "--run-cache", cwd=clone)
+    status = sh("dvc", "status", cwd=clone)
+    assert "up to date" in status, status
+    out = sh("dvc", "repro", cwd=clone)
+    assert "Running stage" not in out, out
+    assert (clone / "reports" / "campaign" / "summary.json").read_bytes() == \
+        (dvc_repo.root / "reports" / "campaign" / "summary.json").read_bytes()
 
 
 @pytest.mark.parametrize("stage, key, onto", [

@@ -1,5 +1,6 @@
 """The flight simulator: references, controller, hidden effects, determinism, oracle."""
 
+import functools
 import math
 
 import numpy as np
@@ -292,9 +293,17 @@ def test_a_flight_is_the_same_alone_or_in_a_batch_of_other_worlds():
         force[..., 1] = 0.01 * torch.sin(t)
         return force, torch.zeros_like(force)
 
+    def lift(t, x, omega, omega_dot, *, k):
+        # a family of user effects: flights of partials of it are evaluated in one call
+        force = torch.zeros_like(x[..., :3])
+        force[..., 2] = k * x[..., 2]
+        return force, torch.zeros_like(force)
+
     specs = [sim.FlightSpec("melon", 1, effects={"rotor_drag": 0.7, "turbulence": 1.0}, seed=3),
              sim.FlightSpec("chirp", 2, effects={}, seed=1, extra_wrench=push),
-             sim.FlightSpec("melon", 2, effects={"com_offset": 2.0, "inertia_offset": 1.0}, seed=0)]
+             sim.FlightSpec("melon", 2, effects={"com_offset": 2.0, "inertia_offset": 1.0}, seed=0),
+             sim.FlightSpec("chirp", 1, effects={}, seed=2, extra_wrench=functools.partial(lift, k=0.02)),
+             sim.FlightSpec("chirp", 1, effects={}, seed=2, extra_wrench=functools.partial(lift, k=-0.03))]
     batch = sim.simulate_flights(specs, cfg=TINY, progress=False)
     for spec, b in zip(specs, batch):
         alone = sim.simulate_flights([spec], cfg=TINY, progress=False)[0]
@@ -302,6 +311,7 @@ def test_a_flight_is_the_same_alone_or_in_a_batch_of_other_worlds():
         assert np.array_equal(alone.y, b.y) and np.array_equal(alone.u, b.u)
     # the worlds differ: the same flight in another world is another flight
     assert not np.allclose(batch[0].y, sim.simulate_flight("melon", 1, effects={}, seed=3, cfg=TINY).y)
+    assert not np.allclose(batch[3].y, batch[4].y)
 
 
 def test_a_constant_extra_force_moves_the_flight_as_newton_says():

@@ -17,6 +17,7 @@ Example::
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
@@ -54,37 +55,33 @@ def _v_body(x):
     return so3.quat_rotate(so3.quat_conj(x[..., 6:10]), x[..., 3:6])
 
 
-def _thrust_sag(s: float):
-    # the battery sags: thrust falls by 4 % x s over 20 s of flight
-    def fn(t, x, om, om_dot):
-        f = torch.zeros_like(x[..., :3])
-        f[..., 2] = -0.04 * s * K_F * (om ** 2).sum(-1) * torch.clamp(t, min=0.0) / 20.0
-        return f, torch.zeros_like(f)
-    return fn
+# User-supplied effects that no library entry describes, each ``fn(t, x, om, om_dot, *, s)`` of
+# a strength ``s`` (a number, or a tensor broadcasting against the states' leading shape: the
+# simulator stacks the strengths of many worlds into one call).
+def thrust_sag(t, x, om, om_dot, *, s):
+    """The battery sags: thrust falls by 4 % x s over 20 s of flight."""
+    f = torch.zeros_like(x[..., :3])
+    f[..., 2] = -0.04 * s * K_F * (om ** 2).sum(-1) * torch.clamp(t, min=0.0) / 20.0
+    return f, torch.zeros_like(f)
 
 
-def _height_roll(s: float):
-    # a flow off the arena's wall: a roll torque growing with height
-    def fn(t, x, om, om_dot):
-        tau = torch.zeros_like(x[..., :3])
-        tau[..., 0] = 2e-5 * s * (x[..., 2] - 1.5)
-        return torch.zeros_like(tau), tau
-    return fn
+def height_roll(t, x, om, om_dot, *, s):
+    """A flow off the arena's wall: a roll torque growing with height."""
+    tau = torch.zeros_like(x[..., :3])
+    tau[..., 0] = 2e-5 * s * (x[..., 2] - 1.5)
+    return torch.zeros_like(tau), tau
 
 
-def _yaw_coupling(s: float):
-    # an airframe asymmetry: a yaw torque from the horizontal velocity's two components
-    def fn(t, x, om, om_dot):
-        v = _v_body(x)
-        tau = torch.zeros_like(v)
-        tau[..., 2] = 4e-6 * s * v[..., 0] * v[..., 1]
-        return torch.zeros_like(v), tau
-    return fn
+def yaw_coupling(t, x, om, om_dot, *, s):
+    """An airframe asymmetry: a yaw torque from the horizontal velocity's two components."""
+    v = _v_body(x)
+    tau = torch.zeros_like(v)
+    tau[..., 2] = 4e-6 * s * v[..., 0] * v[..., 1]
+    return torch.zeros_like(v), tau
 
 
-# user-supplied effects that no library entry describes: name -> strength -> extra_wrench
-OUT_OF_LIBRARY: dict[str, Callable[[float], Callable]] = {
-    "thrust_sag": _thrust_sag, "height_roll": _height_roll, "yaw_coupling": _yaw_coupling}
+OUT_OF_LIBRARY: dict[str, Callable] = {"thrust_sag": thrust_sag, "height_roll": height_roll,
+                                       "yaw_coupling": yaw_coupling}
 
 
 @dataclass(frozen=True)
@@ -99,7 +96,7 @@ class World:
 
     @property
     def extra_wrench(self):
-        return None if self.user is None else OUT_OF_LIBRARY[self.user](self.user_strength)
+        return None if self.user is None else functools.partial(OUT_OF_LIBRARY[self.user], s=self.user_strength)
 
     @property
     def clean(self) -> bool:

@@ -19,6 +19,7 @@ leading dimensions. Rotor positions and spin directions are those of :mod:`nanos
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 from typing import Callable, Mapping, Sequence
 
@@ -174,6 +175,23 @@ class World:
         return Nature([self], vehicle, dtype=x.dtype).wrench(None, x, omega, omega_dot)
 
 
+def _extra_groups(extra: Sequence[ExtraWrench | None], dtype) -> list[tuple[ExtraWrench, Tensor, dict[str, Tensor]]]:
+    """The flights' user-supplied wrenches as calls: one per function, and one per family of
+    ``functools.partial`` s of one function with numeric keywords (the keywords stacked per
+    flight), so that a thousand worlds of one effect at a thousand strengths cost one call."""
+    groups: dict[tuple, list[int]] = {}
+    for i, fn in enumerate(extra):
+        if fn is None:
+            continue
+        key: tuple = (fn, ())
+        if isinstance(fn, functools.partial) and not fn.args and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) for v in fn.keywords.values()):
+            key = (fn.func, tuple(sorted(fn.keywords)))
+        groups.setdefault(key, []).append(i)
+    return [(fn, torch.tensor(rows), {k: torch.tensor([extra[i].keywords[k] for i in rows], dtype=dtype) for k in names})
+            for (fn, names), rows in groups.items()]
+
+
 class Nature:
     """The extra wrench of a batch of flights, each with its own world.
 
@@ -183,7 +201,9 @@ class Nature:
         vehicle: Nominal parameters.
         disturbances: Per flight, the realisation of :meth:`World.disturbance` (or None).
         extra: Per flight (or one for all), a user-supplied ``fn(t, x, omega, omega_dot) ->
-            (force_B, torque_B)`` in SI units, or None.
+            (force_B, torque_B)`` in SI units, or None. Flights whose functions are
+            ``functools.partial(f, k=number, ...)`` of one ``f`` are evaluated in one call, each
+            keyword a tensor ``(flights, 1, ...)`` of the flights' values.
     """
 
     def __init__(self, worlds: Sequence[World], vehicle: Vehicle, *, disturbances: Sequence[np.ndarray | None] = (),
@@ -254,6 +274,7 @@ class Nature:
             self.extra = extra
         else:
             self.extra = list(extra) if any(fn is not None for fn in extra) else None
+            self.groups = _extra_groups(self.extra, dtype) if self.extra is not None else []
         self.active = bool(c) or self.table is not None or self.extra is not None
 
     @property
@@ -299,10 +320,12 @@ class Nature:
         if callable(self.extra):
             return self.extra(tt, x, omega, omega_dot)
         force, torque = torch.zeros_like(x[..., :3]), torch.zeros_like(x[..., :3])
-        for fn in dict.fromkeys(fn for fn in self.extra if fn is not None):
-            rows = torch.tensor([g is fn for g in self.extra])
-            f, tq = fn(tt[rows], x[rows], omega[rows], omega_dot[rows])
-            force[rows], torque[rows] = force[rows] + f, torque[rows] + tq
+        per_flight = (-1,) + (1,) * (x.dim() - 2)
+        for fn, rows, keywords in self.groups:
+            kw = {k: v.view(per_flight) for k, v in keywords.items()}
+            f, tq = fn(tt[rows], x[rows], omega[rows], omega_dot[rows], **kw)
+            force.index_add_(0, rows, f)
+            torque.index_add_(0, rows, tq)
         return force, torque
 
     def wrench(self, t, x: Tensor, omega: Tensor, omega_dot: Tensor) -> tuple[Tensor, Tensor]:

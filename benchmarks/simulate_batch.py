@@ -1,0 +1,49 @@
+"""Time to simulate one short flight, 16 and 256 in one batch, each flight in its own world.
+
+The worlds (effects, strengths, seeds, user effects) are the campaign's draws; every flight
+flies a 5 s chirp. The batch advances all flights together, step by step: the ratios against
+one flight, measured in the same run, show how little a flight costs in a batch. The one
+flight is the first draw with every simulator effect switched on and a user effect, so that it
+runs every code path a batch of many worlds runs.
+"""
+
+from __future__ import annotations
+
+import time
+
+import torch
+
+import dataclasses
+import functools
+
+from nanosysid import sim, worlds
+
+SIZES = (1, 16, 256)
+DURATION = 5.0  # s
+
+
+def main() -> dict[str, float]:
+    torch.set_num_threads(1)
+    cfg = sim.SimConfig.from_mapping({"trajectories": {"chirp": {"duration": DURATION}}})
+    draws = worlds.draw(max(SIZES), seed=0)
+    specs = [sim.FlightSpec(trajectory="chirp", run=1, effects=w.effects, seed=w.seed, extra_wrench=w.extra_wrench,
+                            name=f"chirp_w{w.index}_run1") for w in draws]
+    every = dataclasses.replace(specs[0], effects={e: 1.0 for e in sim.EFFECTS},
+                                extra_wrench=functools.partial(worlds.thrust_sag, s=1.0))
+    sim.simulate_flights([every], cfg=cfg, progress=False)  # warm-up: imports, first allocations
+    out: dict[str, float] = {}
+    for n in SIZES:
+        t0 = time.perf_counter()
+        sim.simulate_flights([every] if n == 1 else specs[:n], cfg=cfg, progress=False)
+        out[f"flights_{n}_s"] = time.perf_counter() - t0
+    one = out["flights_1_s"]
+    for n in SIZES[1:]:
+        out[f"flights_{n}_over_one"] = out[f"flights_{n}_s"] / one
+    for n in SIZES:
+        print(f"{n:4d} flights of {DURATION:g} s in one batch: {out[f'flights_{n}_s']:6.2f} s "
+              f"({out[f'flights_{n}_s'] / one:.2f}x one flight)")
+    return out
+
+
+if __name__ == "__main__":
+    main()

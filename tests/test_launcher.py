@@ -1,0 +1,90 @@
+"""The launcher: the same results in the tasks' order wherever they run, the SLURM executor
+built from conf/launcher/slurm.yaml (submitit's debug executor stands in for the cluster), and
+the campaign stage's summary the same with one or two local workers."""
+
+import math
+from pathlib import Path
+
+import pytest
+from omegaconf import OmegaConf
+
+from nanosysid import config
+from nanosysid.errors import ConfigError
+from nanosysid.launcher import Launcher, map_tasks, slurm_executor
+
+ROOT = Path(__file__).resolve().parents[1]
+SLURM = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "launcher" / "slurm.yaml"))
+
+
+def hypot(a, b):
+    import torch
+
+    # the task sees the launcher's thread count, whatever the parent process uses
+    return math.hypot(a, b), torch.get_num_threads()
+
+
+TASKS = [(3.0, 4.0), (5.0, 12.0), (8.0, 15.0)]
+
+
+def test_local_workers_return_results_in_the_tasks_order():
+    for workers in (1, 2):
+        out = map_tasks(hypot, TASKS, Launcher(workers=workers))
+        assert out == [(5.0, 1), (13.0, 1), (17.0, 1)]
+
+
+def test_slurm_executor_carries_the_configs_partition_time_and_memory(tmp_path, monkeypatch):
+    from submitit.slurm.slurm import SlurmExecutor
+
+    monkeypatch.setattr(SlurmExecutor, "affinity", staticmethod(lambda: 1))  # as if srun were there
+    spec = Launcher.from_mapping({**SLURM, "partition": "gpu", "time_min": 90, "mem_gb": 16, "workers": 8,
+                                  "folder": str(tmp_path)})
+    ex = slurm_executor(spec)
+    p = ex._executor.parameters  # what sbatch would be given
+    assert p["partition"] == "gpu" and p["time"] == 90 and p["mem"] == "16GB" and p["array_parallelism"] == 8
+
+
+def test_slurm_path_runs_tasks_through_submitit(tmp_path):
+    spec = Launcher.from_mapping({**SLURM, "cluster": "debug", "folder": str(tmp_path / "jobs")})
+    assert map_tasks(hypot, TASKS, spec) == [(5.0, 1), (13.0, 1), (17.0, 1)]
+    assert any((tmp_path / "jobs").iterdir())  # submitit's job folders, on the "shared" folder
+
+
+@pytest.mark.parametrize("block, message", [
+    ({"kind": "cloud"}, "launcher.kind: 'cloud' is not one of local, slurm"),
+    ({"workers": 0}, "launcher.workers: 0 is not a positive whole number"),
+    ({"partitoin": "gpu"}, "launcher: unknown key(s) partitoin"),
+])
+def test_bad_launcher_config_is_one_clear_error(block, message):
+    with pytest.raises(ConfigError) as e:
+        Launcher.from_mapping(block)
+    assert message in str(e.value)
+
+
+def test_a_stage_command_line_chooses_the_launcher_group(tmp_path, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    params = tmp_path / "params.yaml"
+    config.compose([], out=params)
+    cfg = config.load_params(["launcher=slurm", "launcher.partition=gpu"], path=params)
+    assert cfg.launcher.kind == "slurm" and cfg.launcher.partition == "gpu" and cfg.launcher.time_min == SLURM["time_min"]
+    with pytest.raises(ConfigError, match="no option 'cluster' in conf/launcher/ \\(known: local, slurm\\)"):
+        config.load_params(["launcher=cluster"], path=params)
+
+
+@pytest.mark.slow
+def test_campaign_gives_the_same_bytes_with_one_or_two_workers(tmp_path, monkeypatch):
+    from stages import campaign
+    from stages.common import run_stage
+
+    monkeypatch.chdir(ROOT)
+    params = tmp_path / "params.yaml"
+    config.compose([], out=params)
+    for workers in (1, 2):
+        argv = ["--params", str(params), "campaign.worlds=3", "campaign.chunk=1", "campaign.duration=6.0",
+                "launcher=local", f"launcher.workers={workers}", f"campaign.out_dir={tmp_path / str(workers)}"]
+        assert run_stage(campaign.main, description="", argv=argv) == 0
+    for name in ("summary.json", "worlds.parquet", "summary.md"):
+        assert (tmp_path / "1" / name).read_bytes() == (tmp_path / "2" / name).read_bytes(), name
+    import pandas as pd
+
+    table = pd.read_parquet(tmp_path / "1" / "worlds.parquet")
+    assert list(table["world"]) == [0, 1, 2]
