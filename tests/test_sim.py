@@ -270,7 +270,8 @@ def test_flight_layout_truth_and_noise():
 
 TINY = SimConfig.from_mapping({
     "preroll": 0.5,
-    "trajectories": {"melon": {"duration": 2.5, "circle_time": 1.5, "return_time": 0.5, "ramp_time": 0.15}},
+    "trajectories": {"melon": {"duration": 2.5, "circle_time": 1.5, "return_time": 0.5, "ramp_time": 0.15},
+                     "chirp": {"duration": 2.5}},
 })
 
 
@@ -302,8 +303,8 @@ def test_a_flight_is_the_same_alone_or_in_a_batch_of_other_worlds():
     specs = [sim.FlightSpec("melon", 1, effects={"rotor_drag": 0.7, "turbulence": 1.0}, seed=3),
              sim.FlightSpec("chirp", 2, effects={}, seed=1, extra_wrench=push),
              sim.FlightSpec("melon", 2, effects={"com_offset": 2.0, "inertia_offset": 1.0}, seed=0),
-             sim.FlightSpec("chirp", 1, effects={}, seed=2, extra_wrench=functools.partial(lift, k=0.02)),
-             sim.FlightSpec("chirp", 1, effects={}, seed=2, extra_wrench=functools.partial(lift, k=-0.03))]
+             sim.FlightSpec("melon", 1, effects={}, seed=2, extra_wrench=functools.partial(lift, k=0.02)),
+             sim.FlightSpec("melon", 1, effects={}, seed=2, extra_wrench=functools.partial(lift, k=-0.03))]
     batch = sim.simulate_flights(specs, cfg=TINY, progress=False)
     for spec, b in zip(specs, batch):
         alone = sim.simulate_flights([spec], cfg=TINY, progress=False)[0]
