@@ -20,15 +20,18 @@ def _state(rng, n):
     return x
 
 
+def _inputs(rng, n):
+    """States and rotor speeds (rad/s) of ``n`` random samples, as tensors."""
+    return torch.from_numpy(_state(rng, n)), torch.from_numpy(rng.uniform(1500, 2500, (n, 4)))
+
+
 def test_inertia_columns_are_the_first_order_change_of_the_measured_torque():
     # a body of inertia J + dJ driven by the rotor torque tau: dw/dt = (J + dJ)^-1 (tau - w x (J + dJ) w);
     # the torque measured with the nominal J is J dw/dt + w x J w. Its difference from tau, for a
     # dJ of 1e-3 J, must be the inertia columns times the correction up to second order
     rng = np.random.default_rng(0)
     v = Vehicle()
-    n = 64
-    x = torch.from_numpy(_state(rng, n))
-    om = torch.from_numpy(rng.uniform(1500, 2500, (n, 4)))
+    x, om = _inputs(rng, 64)
     J = np.array(v.inertia)
     dJ = 1e-3 * J * np.array([1.0, -2.0, 1.5])
     kl = v.k_f * v.arm
@@ -53,9 +56,7 @@ def test_rotor_spread_is_each_rotor_off_by_its_own_share():
     # spins + - + -), are the entry's columns times the coefficients whose physical values are d
     rng = np.random.default_rng(2)
     v = Vehicle()
-    n = 32
-    x = torch.from_numpy(_state(rng, n))
-    om = torch.from_numpy(rng.uniform(1500, 2500, (n, 4)))
+    x, om = _inputs(rng, 32)
     d = np.array([0.03, -0.02, 0.025, -0.035])
     d -= d.mean()
     s = om.numpy() ** 2 * d
