@@ -117,29 +117,19 @@ def map_tasks(fn: Callable[..., Any], tasks: Sequence[tuple], spec: Launcher | N
 
     spec = spec or Launcher()
     tasks = [tuple(t) for t in tasks]
-    bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
-    try:
-        if spec.kind == "slurm":
-            ex = slurm_executor(spec, name=name)
-            jobs = ex.map_array(_pinned, [fn] * len(tasks), [spec.threads] * len(tasks), tasks)
-            out = []
-            for job in jobs:
-                out.append(job.result())
-                bar.update()
-            return out
-        if spec.processes == 1 or len(tasks) <= 1:
-            out = []
-            for t in tasks:
-                out.append(_pinned(fn, spec.threads, t))
-                bar.update()
-            return out
+    fns, threads = [fn] * len(tasks), [spec.threads] * len(tasks)
+    pool = None
+    if spec.kind == "slurm":
+        jobs = slurm_executor(spec, name=name).map_array(_pinned, fns, threads, tasks)
+        results = (job.result() for job in jobs)
+    elif spec.processes == 1 or len(tasks) <= 1:
+        results = map(_pinned, fns, threads, tasks)
+    else:
         # spawned, not forked: a fork of a process that has run torch's thread pool can hang
-        ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(min(spec.processes, len(tasks)), mp_context=ctx) as pool:
-            out = []
-            for r in pool.map(_pinned, [fn] * len(tasks), [spec.threads] * len(tasks), tasks):
-                out.append(r)
-                bar.update()
-            return out
+        pool = ProcessPoolExecutor(min(spec.processes, len(tasks)), mp_context=multiprocessing.get_context("spawn"))
+        results = pool.map(_pinned, fns, threads, tasks)
+    try:
+        return list(tqdm(results, total=len(tasks), desc=desc, disable=not progress))
     finally:
-        bar.close()
+        if pool is not None:
+            pool.shutdown()
