@@ -130,7 +130,7 @@ def short_flights_config(duration: float = 20.0):
     return SimConfig.from_mapping({"trajectories": {
         "square": {},
         "random": {"box": [2.4, 2.4, 1.2], "duration": duration, "n_points": max(4, int(round(0.9 * duration)))},
-        "melon": {"ramp_time": 0.15, "duration": duration, "circle_time": 0.75 * duration,
+        "melon": {"ramp_time": 0.18, "duration": duration, "circle_time": 0.75 * duration,
                   "return_time": 0.15 * duration},
         "chirp": {"duration": duration},
     }})

@@ -72,7 +72,7 @@ class SimConfig:
     feedforward: float = 0.85  # share of the velocity and acceleration setpoints sent to the controller
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     trajectories: Mapping[str, Mapping[str, Any]] = field(
-        default_factory=lambda: {"random": {"box": (2.4, 2.4, 1.2)}, "melon": {"ramp_time": 0.15}}
+        default_factory=lambda: {"random": {"box": (2.4, 2.4, 1.2)}, "melon": {"ramp_time": 0.18}}
     )
     gains: MellingerGains = field(default_factory=MellingerGains)
 
