@@ -50,9 +50,10 @@ repro: params toolchain
 	env $(PINNED) $(BIN)/dvc repro
 	$(BIN)/python -m nanosysid.report.readme --sections results
 
-# every benchmark's figures into reports/bench.json, and from there into the README
+# every benchmark's figures into reports/bench.json, and from there into the README;
+# `make bench NAMES="simulate_batch discover_speed"` reruns only those
 bench: $(STAMP)
-	env $(PINNED) PYTHONPATH=$(CURDIR) $(BIN)/python benchmarks/run.py
+	env $(PINNED) PYTHONPATH=$(CURDIR) $(BIN)/python benchmarks/run.py $(NAMES)
 	$(BIN)/python -m nanosysid.report.readme --sections bench
 
 clean-venv:

@@ -4,6 +4,9 @@ The record holds the machine (CPU model, cores, the pinned thread count, torch a
 versions), and for each benchmark its figures: times in seconds and the ratios against the
 reference each measures in the same run. No date: the same figures give the same bytes.
 ``python -m nanosysid.report.readme --sections bench`` puts them into the README.
+
+``benchmarks/run.py NAME ...`` runs only those; the record keeps the other benchmarks' figures
+when it was taken on the same machine, and is started afresh otherwise.
 """
 
 from __future__ import annotations
@@ -46,16 +49,24 @@ def _round(v):
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=Path("reports/bench.json"))
-    p.add_argument("names", nargs="*", default=list(BENCHMARKS))
+    p.add_argument("names", nargs="*", default=list(BENCHMARKS), metavar="NAME", help=f"of {', '.join(BENCHMARKS)}")
     a = p.parse_args(argv)
+    unknown = sorted(set(a.names) - set(BENCHMARKS))
+    if unknown:
+        p.error(f"unknown benchmark {', '.join(unknown)}: choose from {', '.join(BENCHMARKS)}")
     sys.path.insert(0, str(Path(__file__).parent))
     record = {"format": FORMAT, "machine": machine(), "benchmarks": {}}
+    if set(a.names) < set(BENCHMARKS) and a.out.exists():
+        old = json.loads(a.out.read_text())
+        if old.get("format") == FORMAT and old.get("machine") == record["machine"]:
+            record["benchmarks"] = old["benchmarks"]
     for name in a.names:
         print(f"== benchmarks/{name}.py", flush=True)
         module = importlib.import_module(name)
         figures = module.main()
         record["benchmarks"][name] = {"about": module.__doc__.strip().split("\n\n")[0].replace("\n", " "),
                                       "figures": {k: _round(v) for k, v in figures.items()}}
+    record["benchmarks"] = {k: record["benchmarks"][k] for k in BENCHMARKS if k in record["benchmarks"]}
     from nanosysid.dataio import atomic_file
 
     with atomic_file(a.out) as tmp:
