@@ -87,8 +87,8 @@ class Finding:
         evidence: ``heldout_gain`` (share of the nominal residual's weighted sum of squares,
             held out), ``z``, ``p`` (Bonferroni-adjusted), ``blocks_improved`` / ``blocks``,
             ``stderr`` and ``ci`` (95 %, jackknife over the folds) per coefficient,
-            ``stability`` (share of the folds' refits that prefer it to every other candidate of
-            its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
+            ``stability`` (share of the held-out folds on which it beats every other candidate
+            of its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
             ``band``, and ``added`` False where its terms would make the training rollouts
             diverge (they are then left out of the augmented model).
     """
@@ -498,23 +498,21 @@ def _delay_stderr(search: _Search, chosen: list[str], delays: Sequence[float]) -
 
 
 def _stability(search: _Search, chosen: list[str], name: str, competitors: list[str], delay: float) -> float:
-    """Share of the folds' refits (all folds but one) in which ``name``, with the other chosen
-    entries, leaves less in-sample residual than each competitor in its place."""
-    if not competitors or name == DELAY.name:
+    """Share of the held-out folds on which ``name``, with the other chosen entries, leaves less
+    residual than each competitor in its place: the selection's own criterion, fold by fold (an
+    in-sample comparison would favour the competitor with more columns)."""
+    rivals = [c for c in competitors if c not in (DELAY.name, name) and c not in chosen]
+    if not rivals or name == DELAY.name:
         return 1.0
     g = search.grams(delay)
     others = [n for n in chosen if n != name]
-    wins = 0
-    for k in range(search.folds):
-        train = np.flatnonzero(g.fold != k)
 
-        def sse(n: str) -> float:
-            cols = search.cols(others + [n])
-            return float(g.sse(cols, g.solve(cols, train), train).sum())
+    def per_fold(n: str) -> np.ndarray:
+        blocks, _ = g.heldout(search.cols(others + [n]))
+        return np.bincount(g.fold, weights=blocks, minlength=search.folds)
 
-        mine = sse(name)
-        wins += all(mine <= sse(c) for c in competitors if c != DELAY.name and c not in others)
-    return wins / search.folds
+    mine = per_fold(name)
+    return float(np.mean(np.all([mine <= per_fold(c) for c in rivals], axis=0)))
 
 
 def _explains(search: _Search, chosen: list[str], name: str, delay: float, cache: dict) -> float:

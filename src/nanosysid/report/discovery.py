@@ -73,7 +73,7 @@ def _verdict_line(f) -> str:
              f"floors, z = {ev['z']:.1f}, "
              f"p = {ev['p']:.2g}, {ev['blocks_improved']} / {ev['blocks']} blocks improved")
     if f.verdict == "named":
-        return f"**`{f.name}` named** on {', '.join(f.channels)} ({stats}; chosen in {100 * ev['stability']:.0f} % of the folds' refits)."
+        return f"**`{f.name}` named** on {', '.join(f.channels)} ({stats}; the best of its round on {100 * ev['stability']:.0f} % of the held-out folds)."
     if f.verdict == "ambiguous":
         alts = ", ".join(f"`{a}`" for a in f.alternatives)
         how = "; ".join(f"`{a}`: {t}" for a, t in ev["separate_by"].items() if t)
