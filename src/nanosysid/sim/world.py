@@ -98,7 +98,7 @@ EFFECTS: dict[str, str] = {
                   f"({_mm(TURBULENCE_FORCE)}) mN and ({', '.join(f'{x:g}' for x in TURBULENCE_TORQUE)}) N m, "
                   f"low-pass {TURBULENCE_BAND:g} Hz; a new realisation every flight",
     "unsteady_thrust": "each rotor's thrust and drag torque fluctuate around k Omega^2 (unsteady aerodynamics of the "
-                       f"rotor in its own disturbed inflow): factors 1 + e_i(t), e_i of std {UNSTEADY_THRUST:.0%}, "
+                       f"rotor in its own disturbed inflow): factors 1 + e_i(t), e_i of std {UNSTEADY_THRUST:.1%}, "
                        f"low-pass {UNSTEADY_THRUST_BAND:g} Hz, independent per rotor; a new realisation every flight",
 }
 
