@@ -127,10 +127,11 @@ def short_flights_config(duration: float = 20.0):
     """The simulator's config with every trajectory ``duration`` seconds long."""
     from nanosysid.sim import SimConfig
 
+    default = SimConfig().trajectories
     return SimConfig.from_mapping({"trajectories": {
         "square": {},
-        "random": {"box": [2.4, 2.4, 1.2], "duration": duration, "n_points": max(4, int(round(0.9 * duration)))},
-        "melon": {"ramp_time": 0.18, "duration": duration, "circle_time": 0.75 * duration,
+        "random": {**default["random"], "duration": duration, "n_points": max(4, int(round(0.9 * duration)))},
+        "melon": {**default["melon"], "duration": duration, "circle_time": 0.75 * duration,
                   "return_time": 0.15 * duration},
         "chirp": {"duration": duration},
     }})
