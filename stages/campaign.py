@@ -10,7 +10,6 @@ from omegaconf import DictConfig
 from nanosysid import worlds
 from nanosysid.dataio import atomic_dir, atomic_file
 from nanosysid.effects import LIBRARY
-from nanosysid.errors import ConfigError
 from nanosysid.launcher import Launcher
 from nanosysid.report.campaign import summary_markdown, worlds_table
 from nanosysid.sim import EFFECTS
@@ -25,9 +24,7 @@ def main(cfg: DictConfig) -> dict:
     ``launcher``, and write into ``campaign.out_dir`` (replaced atomically): ``summary.json``
     and ``summary.md``, ``worlds.parquet``, ``recall.png``, ``confusion.png``, ``gap.png``."""
     c = cfg.campaign
-    n, chunk = int(c.worlds), int(c.chunk)
-    if n < 1 or chunk < 1:
-        raise ConfigError(f"campaign.worlds ({n}) and campaign.chunk ({chunk}) must be positive whole numbers")
+    n, chunk = int(c.worlds), int(c.chunk)  # positive whole numbers: the config's rules check them
     spec = Launcher.from_mapping(plain(cfg.launcher))
     draws = worlds.draw(n, int(c.seed), user_share=float(c.user_share), max_effects=int(c.max_effects))
     rows = worlds.check(draws, launcher=spec, cfg=worlds.short_flights_config(float(c.duration)),
