@@ -64,6 +64,9 @@ WORLDS = {
     "clean": ({}, None, 1),
     "delay": ({"telemetry_delay": 1.0}, None, 1),
     "cg": ({"com_offset": 1.0}, None, 1),
+    # turbulence (beyond the library) is a torque the controller fights: a larger inertia or arm
+    # would "explain" most of it, and their bounds rule them out
+    "cg_turbulence": ({"com_offset": 1.0, "turbulence": 1.0}, None, 1),
     "inflow": ({}, inflow, 1),
     "drag_above": ({}, drag_above, 1),
     "inertia": ({"inertia_offset": 1.0}, None, 1),
@@ -140,12 +143,15 @@ def test_noise_floor_is_the_clean_residual():
     assert np.all(np.abs(rms / r.noise - 1) < 0.15), rms / r.noise
 
 
-@pytest.mark.parametrize("world,entry", [("delay", "input_delay"), ("cg", "cg_offset")])
+@pytest.mark.parametrize("world,entry", [("delay", "input_delay"), ("cg", "cg_offset"), ("cg_turbulence", "cg_offset")])
 def test_a_hidden_effect_is_named_with_its_truth_inside_its_interval(world, entry):
     r = discovered(world)
     named = [f for f in r.findings if f.name == entry]
     assert named, [(f.verdict, f.entry, f.alternatives) for f in r.findings]
     f = named[0]
+    # named: it beat its eligible rivals held out, so it is the best of its round on most folds
+    # (an implausible candidate that fits better is no rival)
+    assert f.evidence["stability"] >= 0.7, f.evidence["stability"]
     for (k, v), truth in zip(f.params.items(), TRUTH[entry]):
         lo, hi = f.evidence["ci"][k]
         assert abs(v - truth) <= 0.2 * abs(truth), (k, v, truth)

@@ -45,6 +45,11 @@ fit (the same sign-flip test, Bonferroni over the six channels): a channel where
 significantly more than nothing is an **unnamed** finding, and its sparse terms join the
 augmented model. Anything that does not pass these tests is below the noise floor and is not a
 finding.
+
+**The numbers of a finding.** Its coefficients are fitted on every block; their 95 % intervals
+come from the same folds (a delete-a-fold jackknife of the physical values, with Student's t for
+the folds' number), and its stability is the share of the folds on which it beats, held out,
+every other eligible candidate of its round.
 """
 
 from __future__ import annotations
@@ -55,7 +60,7 @@ from dataclasses import dataclass, field
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.stats import norm, wilcoxon
+from scipy.stats import norm, t as student_t, wilcoxon
 
 from nanosysid import benchmark
 from nanosysid.dataio import Flight
@@ -86,9 +91,10 @@ class Finding:
             the augmented model uses (ambiguous), of the generic terms kept (unnamed).
         evidence: ``heldout_gain`` (share of the nominal residual's weighted sum of squares,
             held out), ``z``, ``p`` (Bonferroni-adjusted), ``blocks_improved`` / ``blocks``,
-            ``stderr`` and ``ci`` (95 %, jackknife over the folds) per coefficient,
-            ``stability`` (share of the held-out folds on which it beats every other candidate
-            of its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
+            ``stderr`` and ``ci`` (95 %: jackknife over the folds, Student's t with one degree of
+            freedom fewer than folds) per coefficient,
+            ``stability`` (share of the held-out folds on which it beats every other eligible
+            candidate of its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
             ``band``, and ``added`` False where its terms would make the training rollouts
             diverge (they are then left out of the augmented model).
     """
@@ -156,8 +162,17 @@ def _pvalue(g: np.ndarray) -> tuple[float, float]:
 
 
 def _jackknife(thetas: np.ndarray) -> np.ndarray:
+    """Delete-a-group jackknife standard error from the estimates ``(n, k)`` each fitted without
+    one of ``n`` groups."""
     n = len(thetas)
     return np.sqrt((n - 1) / n * ((thetas - thetas.mean(axis=0)) ** 2).sum(axis=0))
+
+
+def _half_width(stderr: float, groups: int, level: float = 0.95) -> float:
+    """Half-width of the ``level`` interval from a jackknife over ``groups`` groups: the standard
+    error has ``groups - 1`` degrees of freedom, so the quantile is Student's t (with 10 folds,
+    2.26 standard errors rather than the normal 1.96, which would cover 92 %)."""
+    return float(student_t.ppf(0.5 + level / 2, max(groups - 1, 1)) * stderr)
 
 
 class _Search:
@@ -338,7 +353,9 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         picks.append({"name": best, "round": len(rounds), "alternatives": alts, "heldout_gain": float(o["gains"].sum() / total),
                       "size": o["size"], "z": o["z"], "p": o["p"], "blocks_improved": int((o["gains"] > 0).sum()),
                       "blocks": int(len(o["gains"])),
-                      "competitors": [n for n, x in options.items() if n != best and x["gains"].sum() > 0]})
+                      # the rivals the selection chose it over (an implausible or insignificant
+                      # candidate is no rival, however much it would fit)
+                      "competitors": [n for n in eligible if n != best]})
         if best == DELAY.name:
             delay = _best_delay(search, chosen, (0.0,) + delays)
             current, _ = search.grams(delay).heldout(search.cols(chosen))
@@ -389,7 +406,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         alts = [a for a in pk["alternatives"] if a not in named_later]
         ev = {k: pk[k] for k in ("round", "heldout_gain", "size", "z", "p", "blocks_improved", "blocks")}
         ev["stderr"] = stderr
-        ev["ci"] = {k: (params[k] - 1.96 * stderr[k], params[k] + 1.96 * stderr[k]) for k in params}
+        half = {k: _half_width(stderr[k], search.folds) for k in params}
+        ev["ci"] = {k: (params[k] - half[k], params[k] + half[k]) for k in params}
         ev["stability"] = _stability(search, chosen, name, pk["competitors"], delay)
         if "generic_share" in pk:
             ev["generic_share"] = pk["generic_share"]

@@ -229,7 +229,9 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
           "generic sparse fit (pysindy's STLSQ over products of body velocity, rates, thrust and height) captures "
           "of the same disagreement; what remains is tested channel by channel with that generic fit, and is an "
           "unnamed finding where it captures significantly more than nothing. The rotor-speed delay is searched "
-          "inside each fold.", ""]
+          "inside each fold. A coefficient's 95 % interval is a jackknife over the folds (each fold's fit leaves "
+          "that fold out) with Student's t for their number; a named entry's stability is the share of the folds "
+          "on which it beats every other eligible candidate of its round, held out.", ""]
     for i, table in enumerate(result.rounds, 1):
         L += [f"Round {i}:", "", "| candidate | held-out gain | size [noise floors] | z | p (adjusted) | blocks improved | "
               "plausible | eligible |", "|---|---|---|---|---|---|---|---|"]
