@@ -1,14 +1,13 @@
 """campaign: discovery over many hidden worlds (the worlds check), fanned out by the launcher;
 its figures, one row per world, and the figures' plots."""
 
-import json
 import logging
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from nanosysid import worlds
-from nanosysid.dataio import atomic_dir, atomic_file
+from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.effects import LIBRARY
 from nanosysid.launcher import Launcher
 from nanosysid.report.campaign import summary_markdown, worlds_table
@@ -37,7 +36,7 @@ def main(cfg: DictConfig) -> dict:
     out = Path(c.out_dir)
     with atomic_dir(out) as tmp:
         with atomic_file(tmp / "summary.json") as f:
-            f.write_text(json.dumps(summary, indent=1, sort_keys=True) + "\n")
+            f.write_text(json_text(summary, sort_keys=True))
         with atomic_file(tmp / "summary.md") as f:
             f.write_text(summary_markdown(summary, relevant=relevant))
         with atomic_file(tmp / "worlds.parquet") as f:

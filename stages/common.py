@@ -10,7 +10,6 @@ with one message and exit code 2.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 from pathlib import Path
@@ -19,7 +18,7 @@ from typing import Any, Callable, Sequence
 from omegaconf import DictConfig, OmegaConf
 
 from nanosysid.config import load_params
-from nanosysid.dataio import Flight, atomic_file
+from nanosysid.dataio import atomic_file, Flight, json_text
 from nanosysid.errors import ConfigError, UserError
 from nanosysid.vehicle import Vehicle
 
@@ -89,4 +88,4 @@ def pick_flight(flights: list[Flight], name: str | None, key: str) -> Flight:
 def write_json(path: str | Path, payload: Any) -> None:
     """``payload`` as indented JSON, written atomically."""
     with atomic_file(Path(path)) as tmp:
-        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+        tmp.write_text(json_text(payload))

@@ -2,14 +2,13 @@
 (trajectory statistics, the naive and physics rows, the pattern of the results), and the
 simulated world's effects."""
 
-import json
 import logging
 from pathlib import Path
 
 from omegaconf import DictConfig
 
 from nanosysid import benchmark
-from nanosysid.dataio import atomic_file
+from nanosysid.dataio import atomic_file, json_text
 from nanosysid.report import paper, tables
 from nanosysid.sim.stats import stats_markdown, trajectory_stats
 from nanosysid.sim.world import DEFAULT_WORLD, DEPENDS_ON, EFFECTS
@@ -48,7 +47,7 @@ def main(cfg: DictConfig) -> None:
     with atomic_file(out / "stats.md") as tmp:
         tmp.write_text("\n".join(parts))
     with atomic_file(out / "stats.json") as tmp:
-        tmp.write_text(json.dumps(comparison.to_dict(), indent=1) + "\n")
+        tmp.write_text(json_text(comparison.to_dict()))
     log.info("compare: %s", ", ".join(f"{k}: {'yes' if v else 'no'}" for k, v in comparison.checks.items()))
 
 

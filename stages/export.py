@@ -1,6 +1,5 @@
 """export: a model's step to ONNX (checked with onnxruntime) and to C99, with its cost per step."""
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -12,7 +11,7 @@ from omegaconf import DictConfig
 from nanosysid import benchmark
 from nanosysid.errors import ExportError
 from nanosysid.export.steps import Exportable, check_inputs, export_onnx, onnx_outputs
-from nanosysid.dataio import atomic_dir
+from nanosysid.dataio import atomic_dir, json_text
 from nanosysid.models import build_from_options, exportable
 from stages.common import model_options, run_stage
 
@@ -64,7 +63,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
                      "max_abs_diff": max_diff, "tolerance": tol},
             "c": {"ny": ex.ny, "nstate": ex.c.nstate, **ex.c.notes},
         }
-        (tmp / "export.json").write_text(json.dumps(summary, indent=1) + "\n")
+        (tmp / "export.json").write_text(json_text(summary))
     log.info("export %s: ONNX max |diff| %.2g over %d inputs, C step of %d operations",
              name, max_diff, int(ec.onnx_samples), ex.c.flops)
     return summary

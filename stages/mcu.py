@@ -1,7 +1,6 @@
 """mcu: a model's generated C built for the Cortex-M4F, run on QEMU's STM32F405, checked against
 PyTorch float32, its instructions per step, flash and RAM measured."""
 
-import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -9,7 +8,7 @@ from typing import Any
 from omegaconf import DictConfig
 
 from nanosysid import benchmark
-from nanosysid.dataio import atomic_dir, atomic_file
+from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.errors import ConfigError, ExportError
 from nanosysid.export import mcu
 from nanosysid.report.tables import PAPER_COST
@@ -67,7 +66,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
         raise ExportError(f"{out / 'firmware.elf'}: outputs differ from PyTorch float32 by {rel:.3g} "
                           f"(relative to each output's range, tolerance {tol:g})")
     with atomic_file(Path(cfg.paths.export) / f"{name}.json") as f:
-        f.write_text(json.dumps(result, indent=1) + "\n")
+        f.write_text(json_text(result))
     log.info("mcu %s: %.0f instructions per step (%.3f ms at 168 MHz), flash %.1f kB, RAM %.1f kB, rel. diff %.2g",
              name, run.instructions_per_step, t_est_ms, result["flash_kb"], result["ram_kb"], rel)
     return result

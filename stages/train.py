@@ -1,6 +1,5 @@
 """train: fit one learned model on the training flights (multi-step rollout loss)."""
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -8,7 +7,7 @@ from hydra.utils import instantiate
 from omegaconf import DictConfig
 
 from nanosysid import benchmark
-from nanosysid.dataio import atomic_dir
+from nanosysid.dataio import atomic_dir, json_text
 from nanosysid.errors import ConfigError
 from nanosysid.identify import identified_vehicle
 from nanosysid.models.physics import PhysicsStep
@@ -47,7 +46,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
             horizon=int(t.horizon), stride=int(t.stride), batch_size=int(t.batch_size), epochs=int(t.epochs),
             patience=int(t.patience), seed=int(t.seed), val_runs=plain(t.val_runs), log_dir=log_dir,
             accelerator=str(cfg.trainer.accelerator), devices=plain(cfg.trainer.devices))
-        (log_dir / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
+        (log_dir / "summary.json").write_text(json_text(summary))
     return summary
 
 

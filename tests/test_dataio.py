@@ -1,5 +1,6 @@
 """Published CSV schema: round trip, and one clear error per kind of bad input."""
 
+import json
 import os
 import re
 
@@ -7,7 +8,7 @@ import numpy as np
 import pytest
 
 from nanosysid import benchmark, synthetic
-from nanosysid.dataio import OWNER, atomic_dir, atomic_file, read_flight_csv, write_flight_csv
+from nanosysid.dataio import OWNER, atomic_dir, atomic_file, json_text, read_flight_csv, write_flight_csv
 from nanosysid.errors import ConfigError, DataError
 
 
@@ -243,3 +244,14 @@ def test_an_empty_test_folder_is_one_clear_error(dataset):
         f.unlink()
     with pytest.raises(DataError, match=rf"{re.escape(str(root / 'test'))}: no flight CSV files"):
         benchmark.load(root)
+
+
+def test_json_the_project_writes_is_strict_and_says_what_was_not_finite():
+    text = json_text({"simerr": {"p": float("inf"), "v": 1.5}, "mae": [np.float64("nan"), 2.0]})
+
+    def refuse(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    d = json.loads(text, parse_constant=refuse)
+    assert d["simerr"] == {"p": None, "v": 1.5} and d["mae"] == [None, 2.0]
+    assert d["non_finite"] == ["simerr.p: inf", "mae[0]: nan"]

@@ -5,8 +5,10 @@ import re
 
 import numpy as np
 import pytest
+from scipy.signal import lfilter
 
 from nanosysid import identify, models, synthetic
+from nanosysid.dataio import Flight
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
@@ -75,3 +77,38 @@ def test_identify_stage_on_an_empty_training_folder(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip() == f"error: {tmp_path / 'split' / 'train'}: no flight CSV files to fit k_F and k_M on"
     assert not out.exists()
+
+
+def test_flight_jackknife_interval_covers_the_truth_where_the_white_residual_one_does_not():
+    # Flights as independent repeats: each flight's accelerometer error is slow (an AR(1) with
+    # a 2 s correlation time, like a drifting bias), so the samples of one flight are not
+    # independent. The delete-one-flight jackknife with Student's t (11 degrees of freedom)
+    # must cover the truth about 95 % of the time; the white-residual error, which counts
+    # every sample as independent, covers far less.
+    rng = np.random.default_rng(5)
+    truth, vehicle = 3.72e-8, Vehicle()
+    T, a = 400, np.exp(-0.01 / 2.0)
+    jack = white = 0
+    reps = 400
+    for _ in range(reps):
+        flights = []
+        for k in range(12):
+            u = 1800 + 300 * np.sin(np.linspace(0, 6, T)[:, None] + rng.uniform(0, 6, 4)) + rng.normal(0, 20, (T, 4))
+            drive = rng.normal(size=T) * np.sqrt(1 - a * a)
+            drive[0] = rng.normal()  # started in its stationary distribution
+            e = lfilter([1.0], [1.0, -a], drive)
+            az = truth * (u**2).sum(1) / vehicle.mass + 0.3 * e
+            flights.append(synthetic_flight(f"chirp_x_run{k + 1}", u, az))
+        fit = identify.fit_thrust(flights, vehicle)
+        lo, hi = fit.ci95
+        jack += lo <= truth <= hi
+        white += abs(fit.coef - truth) <= 1.96 * fit.stderr
+    assert 0.92 <= jack / reps <= 0.98
+    assert white / reps < 0.6
+
+
+def synthetic_flight(name, u, az):
+    T = len(u)
+    y = np.zeros((T, 13))
+    y[:, 9] = 1.0
+    return Flight(name=name, t=np.arange(T) * 0.01, u=u, y=y, extra={"az_body": az})

@@ -10,6 +10,8 @@ import pytest
 
 from nanosysid import config
 from nanosysid.dataio import read_flight_csv
+from nanosysid.errors import DataError
+from nanosysid.vehicle import Vehicle
 from nanosysid.effects import LIBRARY as discover_library
 from stages import (compare, discover, evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report,
                     simulate, split, sync, train, visualize)
@@ -108,6 +110,21 @@ def test_processed_flights_match_the_truth(tiny):
         assert abs(row["motor_lag_ms"] - row["motor_lag_injected_ms"]) < 10
     assert "| melon_20250601_run2 |" in (tiny / "reports" / "quality.md").read_text()
     assert "| chirp_20250601_run1 |" in (tiny / "reports" / "sync.md").read_text()
+
+
+@pytest.mark.parametrize("field", ["motor_lag", "motor_lag_flight"])
+def test_quality_fails_when_a_flights_motor_lag_is_20_ms_off(tiny, tmp_path, field):
+    # the applied lag 20 ms off the injected one, or a flight's own estimate 20 ms off its session's
+    reports = json.loads((tiny / "reports" / "sync.json").read_text())
+    bad = reports[1]
+    bad[field] = bad["motor_lag"] + 0.020
+    (tmp_path / "sync.json").write_text(json.dumps(reports))
+    with pytest.raises(DataError, match=re.escape(bad["flight"])) as e:
+        quality.quality_report(tiny / "flights", tiny / "raw" / "bags", tiny / "raw" / "csv", tmp_path / "sync.json",
+                               tmp_path, vehicle=Vehicle(), test_trajectories=["melon"], horizon=10)
+    assert "10 ms" in str(e.value) and "recording.sync.lag_tolerance" in str(e.value)
+    assert {p.split(":")[0] for p in json.loads((tmp_path / "quality.json").read_text())["motor_lag_problems"]} == {
+        bad["flight"]}
 
 
 def test_identify_writes_coefficients_and_figure(tiny):

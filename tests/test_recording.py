@@ -20,7 +20,7 @@ from nanosysid.bags.messages import typestore
 from nanosysid.bags.extract import extract_bag
 from nanosysid.bags.filtering import FilterConfig, fill_gaps, filter_flight, lowpass
 from nanosysid.bags.recorder import RecorderConfig, record_flight
-from nanosysid.bags.sync import SyncConfig, sync_flight
+from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence, sync_flight
 from nanosysid.sim.simulator import SimConfig, simulate_raw
 from nanosysid.vehicle import Vehicle
 
@@ -426,3 +426,26 @@ def test_gap_filling_is_bounded():
     out, left = fill_gaps(held, miss, max_gap=10)
     assert np.allclose(out[5:9], x[5:9]) and np.all(out[20:32] == -1)
     assert left == [(20, 12)]
+
+
+def test_motor_lag_is_one_per_session_and_a_flight_off_it_is_reported(raw, tmp_path):
+    # three flights of one session; the third's telemetry lags 20 ms more than the others'
+    delays = (0.020, 0.020, 0.040)
+    cfg = SyncConfig()
+    tables, injected = {}, {}
+    for k, delay in enumerate(delays, start=1):
+        path = tmp_path / f"melon_20250601_run{k}"
+        injected[path.name] = record(raw, path, motor_delay=delay)["motor_lag"]
+        tables[path.name] = extract_bag(path, TOPICS)
+    evidence = [motor_lag_evidence(n, t["imu"], t["motors"], cfg) for n, t in tables.items()]
+    assert all(len(e.proxy) for e in evidence)
+    session = motor_lag_estimate(evidence, cfg)
+    assert session.method == "sharp thrust transients" and session.units == 3
+    odd = "melon_20250601_run3"
+    _, report = sync_flight(odd, tables[odd], cfg, motor_lag=session)
+    assert report["motor_lag"] == session.value and report["motor_lag_source"] == "session"
+    # the odd flight's own estimate finds its own lag, and the report says it is off the session's
+    assert abs(report["motor_lag_flight"] - injected[odd]) < 0.005
+    assert any("this flight's own lag" in w for w in report["warnings"])
+    _, report = sync_flight("melon_20250601_run1", tables["melon_20250601_run1"], cfg, motor_lag=session)
+    assert not any("own lag" in w for w in report["warnings"]) or abs(session.value - 0.050) > cfg.lag_tolerance

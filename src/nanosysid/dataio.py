@@ -36,6 +36,8 @@ __all__ = [
     "read_flight_csv",
     "write_flight_csv",
     "read_json_record",
+    "json_text",
+    "session_of",
     "atomic_file",
     "atomic_dir",
 ]
@@ -109,6 +111,42 @@ def parse_flight_name(name: str) -> tuple[str, int]:
     if m is None:
         raise ValueError(f"flight name {name!r} is not of the form <trajectory>_<date>_run<k>")
     return m["trajectory"].lower(), int(m["run"])
+
+
+def json_text(payload, *, indent: int | None = 1, sort_keys: bool = False) -> str:
+    """``payload`` as strict JSON text (RFC 8259: no NaN or Infinity), ending in a newline.
+
+    A value that is not finite (a diverged rollout's error, say) is written as null, and a
+    mapping at the top gains ``"non_finite"``: the paths of those values, so a reader learns
+    why they are null rather than meeting a bare ``Infinity`` no JSON parser accepts.
+    """
+    replaced: list[str] = []
+
+    def clean(v, path: str):
+        if isinstance(v, dict):
+            return {k: clean(x, f"{path}.{k}" if path else str(k)) for k, x in v.items()}
+        if isinstance(v, (list, tuple)):
+            return [clean(x, f"{path}[{i}]") for i, x in enumerate(v)]
+        if isinstance(v, np.ndarray):
+            return clean(v.tolist(), path)
+        if isinstance(v, np.generic):
+            v = v.item()
+        if isinstance(v, float) and not np.isfinite(v):
+            replaced.append(f"{path}: {v!r}")
+            return None
+        return v
+
+    out = clean(payload, "")
+    if replaced and isinstance(out, dict):
+        out["non_finite"] = replaced
+    return json.dumps(out, indent=indent, sort_keys=sort_keys, allow_nan=False) + "\n"
+
+
+def session_of(name: str) -> str:
+    """The recording session of a flight: the ``<date>`` of ``<trajectory>_<date>_run<k>``, or the
+    name itself where it is not of that form (a flight alone)."""
+    m = _NAME.match(name)
+    return m["date"] if m else name
 
 
 def _where(path: Path, column: str, row: int) -> str:

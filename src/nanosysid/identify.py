@@ -9,7 +9,16 @@
   is trimmed by the controller with a constant rotor-speed difference, which a fit through the
   origin would read as part of k_M.
 
-Both use the training flights only. The result, ``params.json``, is written and read through
+Both use the training flights only, and both are the paper's method: least squares on
+closed-loop flights. In closed loop the controller answers every disturbance through the
+rotor speeds the fit regresses on (the yaw loop sets the rotor-speed difference to cancel a yaw
+disturbance torque), so the regressor and the residual are correlated and k_M in particular
+can be biased well beyond its interval; ``params.json`` says so. The standard errors and 95 %
+intervals come from the flights as independent repeats (a delete-one-flight jackknife with
+Student's t), not from the white-residual formula, which the residuals' correlation in time
+makes far too narrow; the white-residual error is kept beside it.
+
+The result, ``params.json``, is written and read through
 one pair of functions (:func:`save_params`, :func:`load_params`); the physics models,
 discovery and the export take k_F and k_M from it (:func:`identified_vehicle`).
 """
@@ -17,7 +26,6 @@ discovery and the export take k_F and k_M from it (:func:`identified_vehicle`).
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -25,8 +33,9 @@ from typing import Any, Sequence
 
 import numpy as np
 from scipy.signal import savgol_filter
+from scipy.stats import t as student_t
 
-from nanosysid.dataio import Flight, atomic_file, read_json_record
+from nanosysid.dataio import atomic_file, Flight, json_text, read_json_record
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
@@ -34,43 +43,77 @@ __all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "identify", "body_torque", "ya
            "load_params", "identified_vehicle"]
 
 FORMAT = "nanosysid-identified-1"
+CLOSED_LOOP_BIAS = ("possible: both fits are least squares on closed-loop flights with no exogenous excitation of "
+                    "the yaw axis; the controller's answers to disturbances correlate the rotor speeds with the "
+                    "residual, which biases k_M (towards zero) beyond its interval")
 
 
 @dataclass(frozen=True)
 class Fit:
-    """A linear least-squares fit ``y = coef x (+ intercept)``."""
+    """A linear least-squares fit ``y = coef x (+ intercept)``.
+
+    ``stderr`` is the white-residual formula's; ``jackknife_se`` and ``ci95`` come from the
+    flights as repeats (None with fewer than two flights); ``condition`` is the condition
+    number of the regression matrix with unit-norm columns.
+    """
 
     coef: float
     stderr: float
     r2: float
     intercept: float
     n: int
+    jackknife_se: float | None = None
+    ci95: tuple[float, float] | None = None
+    flights: int = 1
+    condition: float = 1.0
+    estimator: str = "least squares on closed-loop flights (the paper's method)"
 
-    def to_dict(self) -> dict[str, float]:
-        return asdict(self)
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["ci95"] = None if self.ci95 is None else list(self.ci95)
+        return d
 
 
-def _lstsq(x: np.ndarray, y: np.ndarray, intercept: bool) -> Fit:
-    A = np.column_stack((x, np.ones_like(x))) if intercept else x[:, None]
+def _design(x: np.ndarray, intercept: bool) -> np.ndarray:
+    return np.column_stack((x, np.ones_like(x))) if intercept else x[:, None]
+
+
+def _lstsq(xs: Sequence[np.ndarray], ys: Sequence[np.ndarray], intercept: bool) -> Fit:
+    """The fit on the flights' samples pooled (one array per flight in ``xs``, ``ys``), with a
+    delete-one-flight jackknife of its coefficient."""
+    x, y = np.concatenate(xs), np.concatenate(ys)
+    A = _design(x, intercept)
     sol, *_ = np.linalg.lstsq(A, y, rcond=None)
     resid = y - A @ sol
     dof = len(y) - A.shape[1]
     cov = np.linalg.inv(A.T @ A) * (resid @ resid) / dof
     ss_tot = ((y - y.mean()) ** 2).sum() if intercept else (y**2).sum()
+    k = len(xs)
+    se = ci = None
+    if k > 1:
+        loo = np.array([np.linalg.lstsq(_design(np.concatenate(xs[:i] + xs[i + 1:]), intercept),
+                                        np.concatenate(ys[:i] + ys[i + 1:]), rcond=None)[0][0]
+                        for i in range(k)])
+        se = float(np.sqrt((k - 1) / k * ((loo - loo.mean()) ** 2).sum()))
+        half = float(student_t.ppf(0.975, k - 1)) * se
+        ci = (float(sol[0]) - half, float(sol[0]) + half)
     return Fit(
         coef=float(sol[0]),
         stderr=float(np.sqrt(cov[0, 0])),
         r2=float(1 - (resid @ resid) / ss_tot),
         intercept=float(sol[1]) if intercept else 0.0,
         n=len(y),
+        jackknife_se=se,
+        ci95=ci,
+        flights=k,
+        condition=float(np.linalg.cond(A / np.linalg.norm(A, axis=0))),
     )
 
 
 def fit_thrust(flights: Sequence[Flight], vehicle: Vehicle) -> Fit:
     """k_F (N s^2/rad^2) from ``m a_z = k_F sum Omega^2``."""
-    x = np.concatenate([(f.u**2).sum(axis=1) for f in flights])
-    y = np.concatenate([vehicle.mass * f.extra["az_body"] for f in flights])
-    return _lstsq(x, y, intercept=False)
+    return _lstsq([(f.u**2).sum(axis=1) for f in flights], [vehicle.mass * f.extra["az_body"] for f in flights],
+                  intercept=False)
 
 
 def body_torque(flight: Flight, inertia: Sequence[float], *, window: int = 15, polyorder: int = 3) -> np.ndarray:
@@ -89,9 +132,9 @@ def yaw_regressor(u: np.ndarray) -> np.ndarray:
 
 def fit_yaw_moment(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, polyorder: int = 3) -> Fit:
     """k_M (N m s^2/rad^2) from the reconstructed yaw torque, with an intercept."""
-    x = np.concatenate([yaw_regressor(f.u) for f in flights])
-    y = np.concatenate([body_torque(f, vehicle.inertia, window=window, polyorder=polyorder)[:, 2] for f in flights])
-    return _lstsq(x, y, intercept=True)
+    return _lstsq([yaw_regressor(f.u) for f in flights],
+                  [body_torque(f, vehicle.inertia, window=window, polyorder=polyorder)[:, 2] for f in flights],
+                  intercept=True)
 
 
 def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, polyorder: int = 3) -> tuple[Fit, Fit]:
@@ -104,9 +147,10 @@ def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, p
 def save_params(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Flight]) -> dict[str, Any]:
     """Write ``params.json``: k_F and k_M, their fits, and the flights they were fitted on."""
     payload = {"format": FORMAT, "k_f": thrust.coef, "k_m": yaw.coef, "thrust_fit": thrust.to_dict(),
-               "yaw_fit": yaw.to_dict(), "train_flights": [f.name for f in flights]}
+               "yaw_fit": yaw.to_dict(), "train_flights": [f.name for f in flights],
+               "closed_loop_bias": CLOSED_LOOP_BIAS}
     with atomic_file(Path(path)) as tmp:
-        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+        tmp.write_text(json_text(payload))
     return payload
 
 

@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import shutil
 from pathlib import Path
 from typing import Sequence
 
-from nanosysid.dataio import atomic_dir, parse_flight_name, read_flight_csv
+from nanosysid.dataio import atomic_dir, json_text, parse_flight_name, read_flight_csv
 from nanosysid.errors import ConfigError, DataError
 
 __all__ = ["split_folder"]
@@ -65,7 +64,7 @@ def split_folder(
                 samples[f.stem] = len(read_flight_csv(f, min_rows=horizon + 1))
                 shutil.copyfile(f, tmp / part / f.name)
             summary[part] = {"flights": samples, "samples": sum(samples.values())}
-        (tmp / "split.json").write_text(json.dumps(summary, indent=1) + "\n")
+        (tmp / "split.json").write_text(json_text(summary))
     log.info(
         "split: train %d flights / %d samples, test %d flights / %d samples",
         len(parts["train"]), summary["train"]["samples"], len(parts["test"]), summary["test"]["samples"],

@@ -21,7 +21,6 @@ be checked against the truth.
 
 from __future__ import annotations
 
-import json
 import math
 import shutil
 from dataclasses import dataclass
@@ -37,6 +36,7 @@ from nanosysid.bags.extract import rotate
 from nanosysid.bags.messages import typestore
 from nanosysid.sim.simulator import NoiseConfig, RawRecord, flight_key, interp_columns, perturb_attitude, velocity_drift
 from nanosysid.vehicle import Vehicle
+from nanosysid.dataio import json_text
 
 __all__ = ["RecorderConfig", "record_flight", "ERPM_PER_RADS"]
 
@@ -251,7 +251,7 @@ def record_flight(
         for c in range(arr.shape[1]):
             truth[f"{name}{c}"] = arr[:, c]
     truth.to_parquet(bag_dir.with_name(bag_dir.name + ".truth.parquet"), index=False)
-    bag_dir.with_name(bag_dir.name + ".truth.json").write_text(json.dumps(injected, indent=1) + "\n")
+    bag_dir.with_name(bag_dir.name + ".truth.json").write_text(json_text(injected))
     return injected
 
 

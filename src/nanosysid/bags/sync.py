@@ -23,16 +23,18 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 from scipy.signal import butter, sosfiltfilt
 from scipy.spatial.transform import Rotation, Slerp
 
 from nanosysid.errors import DataError
 
-__all__ = ["SyncConfig", "sync_flight", "clock_fit", "xcorr_lag"]
+__all__ = ["SyncConfig", "sync_flight", "clock_fit", "xcorr_lag", "LagEvidence", "LagEstimate",
+           "motor_lag_evidence", "motor_lag_estimate"]
 
 log = logging.getLogger(__name__)
 
@@ -49,6 +51,13 @@ class SyncConfig:
     min_samples: int = 51  # a flight needs at least one window (H + 1)
     warn_loss: float = 0.10  # warn above this share of missing samples in a stream
     warn_gap: int = 10  # warn when a stream misses more than this many samples in a row
+    # the motor lag is read off sharp thrust transients: samples where the band-passed sum
+    # Omega^2 changes this many times faster than its robust scale on the session's median
+    # flight, and the window (s) either side of each that joins the correlation
+    lag_threshold: float = 10.0
+    lag_window: float = 0.25
+    # a flight whose own lag estimate is this far (s) from its session's is reported
+    lag_tolerance: float = 0.010
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "SyncConfig":
@@ -85,19 +94,150 @@ def xcorr_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: float,
     n = len(a)
     m = int(round(max_lag / dt))
     size = 1 << int(np.ceil(np.log2(2 * n)))
-    spec = np.fft.rfft(b, size) * np.conj(np.fft.rfft(a, size))
-    cc = np.fft.irfft(spec, size)
-    lags = np.r_[np.arange(0, m + 1), np.arange(-m, 0)]
-    vals = cc[lags % size]
+    cc = np.fft.irfft(np.fft.rfft(b, size) * np.conj(np.fft.rfft(a, size)), size)
+    lags = np.arange(-m, m + 1)
+    return _peak(cc[lags % size]) * dt
+
+
+def _xcov(a: np.ndarray, b: np.ndarray, m: int) -> np.ndarray:
+    """``sum_t a(t) b(t + k)`` for k = -m..m, ``(2m + 1,)``."""
+    size = 1 << int(np.ceil(np.log2(len(a) + len(b) + m)))
+    cc = np.fft.irfft(np.fft.rfft(b, size) * np.conj(np.fft.rfft(a, size)), size)
+    return cc[np.arange(-m, m + 1) % size]
+
+
+def _peak(vals: np.ndarray) -> float:
+    """Offset (in grid steps, from the centre of ``vals``, lags -m..m) of the maximum, refined
+    by a parabola through it and its neighbours."""
+    m = (len(vals) - 1) // 2
     k = int(np.argmax(vals))
-    lag = float(lags[k])
-    # parabolic refinement around the peak
-    if 0 < k < len(vals) - 1 and lags[k - 1] == lags[k] - 1 and lags[k + 1] == lags[k] + 1:
+    lag = float(k - m)
+    if 0 < k < len(vals) - 1:
         y0, y1, y2 = vals[k - 1], vals[k], vals[k + 1]
         den = y0 - 2 * y1 + y2
         if den != 0:
             lag += 0.5 * (y0 - y2) / den
-    return lag * dt
+    return lag
+
+
+@dataclass(frozen=True)
+class LagEvidence:
+    """What one flight says about the motor telemetry's lag behind the accelerometer.
+
+    Attributes:
+        flight: The flight's name.
+        step: Grid step (s) of the signals and of the lags.
+        az, proxy: ``a_z`` and the thrust proxy ``sum Omega^2`` on one grid of the STM32
+            clock (telemetry stamps as recorded), both band-passed.
+        background: Robust standard deviation of the proxy's rate of change (1/s per step):
+            the scale of the loop's answers to the disturbances.
+    """
+
+    flight: str
+    step: float
+    az: np.ndarray
+    proxy: np.ndarray
+    background: float
+
+
+@dataclass(frozen=True)
+class LagEstimate:
+    """A motor lag (s) with its 95 % interval from independent repeats.
+
+    ``events`` counts the transients it rests on (0: the whole-flight fallback), ``units`` the
+    repeats its interval comes from (flights for a session, transients for one flight), and
+    ``background`` is the rate-of-change scale its transients stood out from.
+    """
+
+    value: float
+    interval: tuple[float | None, float | None]
+    method: str
+    events: int
+    units: int
+    background: float
+
+
+def motor_lag_evidence(name: str, imu: pd.DataFrame, motors: pd.DataFrame, cfg: SyncConfig) -> LagEvidence:
+    """``a_z`` and ``sum Omega^2`` of one flight on a common grid, band-passed to ``cfg.xcorr_band``.
+
+    Raises:
+        DataError: the streams do not overlap, or no reading has all four rotors.
+    """
+    t_imu = imu["t_src"].to_numpy()
+    t_mot = motors["t_src"].to_numpy()
+    lo, hi = max(t_imu[0], t_mot[0]), min(t_imu[-1], t_mot[-1])
+    if hi - lo < 2 * cfg.max_lag + 1.0:
+        raise DataError(f"{name}: the motor telemetry and the IMU never overlap in time")
+    step = cfg.xcorr_step
+    tf = np.arange(lo, hi, step)
+    m2 = motors[["m1", "m2", "m3", "m4"]].to_numpy()
+    valid = ~np.isnan(m2).any(axis=1)
+    if valid.sum() < 2:
+        raise DataError(f"{name}: the motor telemetry has no complete reading of the four rotors")
+    sos = butter(2, cfg.xcorr_band, "bandpass", fs=1.0 / step, output="sos")
+    proxy = sosfiltfilt(sos, np.interp(tf, t_mot[valid], (m2[valid] ** 2).sum(axis=1)))
+    az = sosfiltfilt(sos, np.interp(tf, t_imu, imu["az"].to_numpy()))
+    rate = np.gradient(proxy)
+    return LagEvidence(name, step, az - az.mean(), proxy - proxy.mean(),
+                       float(1.4826 * np.median(np.abs(rate - np.median(rate)))))
+
+
+def _transient_curves(e: LagEvidence, threshold: float, window: float, m: int) -> np.ndarray:
+    """``(E, 2m + 1)``: the cross-covariance of ``a_z`` with the proxy over the window around
+    each transient (the proxy changing faster than ``threshold``)."""
+    sharp = np.abs(np.gradient(e.proxy)) > threshold
+    w = int(round(window / e.step))
+    edges = np.flatnonzero(np.diff(np.r_[0, sharp.astype(np.int8), 0]))
+    spans: list[list[int]] = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        a, b = a - w, b + w
+        if spans and a <= spans[-1][1]:
+            spans[-1][1] = b
+        else:
+            spans.append([a, b])
+    # windows clipped so that every lag of the search stays inside the flight
+    spans = [[max(a, m), min(b, len(e.proxy) - m)] for a, b in spans]
+    curves = [_xcov(e.az[a:b], e.proxy[a - m:b + m], 2 * m)[2 * m:4 * m + 1] for a, b in spans if b - a > w]
+    return np.array(curves).reshape(-1, 2 * m + 1)
+
+
+def motor_lag_estimate(evidence: Sequence[LagEvidence], cfg: SyncConfig, *,
+                       background: float | None = None) -> LagEstimate:
+    """The motor lag of one rig (a recording session, or one flight), read off its sharp
+    thrust transients.
+
+    The closed loop answers every thrust disturbance through the rotor speeds a few tens of
+    milliseconds later, so over a whole smooth flight the correlation of ``a_z`` with
+    ``sum Omega^2`` peaks early (towards zero lag). A sharp transient is set by the reference,
+    not by a disturbance: the proxy changes there ``cfg.lag_threshold`` times faster than the
+    background of the loop's answers (by default the median flight's robust scale, so a flight
+    made only of smooth motion has no transient), and there the peak sits at the telemetry's
+    lag. The lag is the peak of the cross-covariances summed over every transient of every
+    flight; its 95 % interval a delete-one jackknife with Student's t over the independent
+    repeats: the flights when several have transients, else the transients of the one. With no
+    transient anywhere, the peak of the whole-flight correlations (biased in closed loop).
+    """
+    step = evidence[0].step
+    m = int(round(cfg.max_lag / step))
+    scale = float(np.median([e.background for e in evidence])) if background is None else background
+    curves = [_transient_curves(e, cfg.lag_threshold * scale, cfg.lag_window, m) for e in evidence]
+    counts = [len(c) for c in curves]
+    if not sum(counts):
+        whole = [_xcov(e.az, e.proxy, m) for e in evidence]
+        value = _peak(np.sum([c / max(np.abs(c).max(), 1e-300) for c in whole], axis=0)) * step
+        return LagEstimate(value, (None, None), "whole-flight correlation", 0, 0, scale)
+    units = ([c.sum(0) for c in curves if len(c)] if sum(n > 0 for n in counts) > 1
+             else list(np.concatenate(curves)))
+    total = np.sum(units, axis=0)
+    value = _peak(total) * step
+    n = len(units)
+    interval: tuple[float | None, float | None] = (None, None)
+    if n > 1:
+        loo = np.array([_peak(total - u) * step for u in units])
+        se = float(np.sqrt((n - 1) / n * ((loo - loo.mean()) ** 2).sum()))
+        half = float(stats.t.ppf(0.975, n - 1)) * se
+        interval = (value - half, value + half)
+    return LagEstimate(value, interval, "sharp thrust transients", int(sum(counts)), n, scale)
 
 
 def _grid_nearest(t_src: np.ndarray, t: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
@@ -110,8 +250,13 @@ def _grid_nearest(t_src: np.ndarray, t: np.ndarray, period: float) -> tuple[np.n
     return j, missing
 
 
-def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig) -> tuple[pd.DataFrame, dict]:
+def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
+                motor_lag: "LagEstimate | None" = None) -> tuple[pd.DataFrame, dict]:
     """Synchronise and resample the streams of one flight.
+
+    ``motor_lag`` is the lag of the motor telemetry to apply, a property of the rig estimated
+    over the flights of one session (:func:`motor_lag_estimate`); None applies the flight's
+    own estimate. The flight's own estimate is reported either way.
 
     Returns:
         The flight on its 100 Hz grid (published columns plus ``miss_*`` masks), and a report
@@ -155,19 +300,13 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig) 
     t_mc = t_mc_coarse - mocap_lag
     report["mocap_lag_axes"] = lags
 
-    # 3. motors against the accelerometer
+    # 3. motors against the accelerometer: the session's lag when given, else the flight's own
+    own = motor_lag_estimate([motor_lag_evidence(name, imu, motors, cfg)], cfg,
+                             background=None if motor_lag is None else motor_lag.background)
+    applied = own if motor_lag is None else motor_lag
     t_imu = imu["t_src"].to_numpy()
-    t_mot = motors["t_src"].to_numpy()
-    lo, hi = max(t_imu[0], t_mot[0]), min(t_imu[-1], t_mot[-1])
-    if hi - lo < 2 * cfg.max_lag + 1.0:
-        raise DataError(f"{name}: the motor telemetry and the IMU never overlap in time")
-    tf = np.arange(lo, hi, cfg.xcorr_step)
     m2 = motors[["m1", "m2", "m3", "m4"]].to_numpy()
-    valid = ~np.isnan(m2).any(axis=1)
-    thrust_proxy = np.interp(tf, t_mot[valid], (m2[valid] ** 2).sum(axis=1))
-    az = np.interp(tf, t_imu, imu["az"].to_numpy())
-    motor_lag = xcorr_lag(az, thrust_proxy, cfg.xcorr_step, cfg.max_lag, cfg.xcorr_band)
-    t_mot = t_mot - motor_lag
+    t_mot = motors["t_src"].to_numpy() - applied.value
 
     # 4. flight segment from the setpoints
     sp = setp[["x", "y", "z"]].to_numpy()
@@ -218,13 +357,25 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig) 
         "stm_drift": stm_drift,
         # STM32 time minus mocap time of the same instant, at the start of the flight
         "mocap_to_stm_offset": float(t[0] - np.interp(t[0], t_mc, mocap["t_src"].to_numpy())),
-        "motor_lag": float(motor_lag),
+        "motor_lag": applied.value,
+        "motor_lag_source": "flight" if motor_lag is None else "session",
+        "motor_lag_interval": list(applied.interval),
+        "motor_lag_method": applied.method,
+        "motor_lag_flight": own.value if own.events else None,
+        "motor_lag_flight_interval": list(own.interval) if own.events else None,
+        "motor_lag_flight_events": own.events,
         "mocap_lag": mocap_lag,
         "missing": {k: float(m.mean()) for k, m in masks.items()},
         "longest_gap": {k: _longest_run(m) for k, m in masks.items()},
     })
     warnings = [f"{k}: {v:.1%} of samples missing" for k, v in report["missing"].items() if v > cfg.warn_loss]
     warnings += [f"{k}: {v} samples missing in a row" for k, v in report["longest_gap"].items() if v > cfg.warn_gap]
+    if own.events and abs(own.value - applied.value) > cfg.lag_tolerance:
+        warnings.append(f"motors: this flight's own lag {own.value * 1e3:.1f} ms is "
+                        f"{abs(own.value - applied.value) * 1e3:.1f} ms off the {applied.value * 1e3:.1f} ms applied")
+    if not applied.events:
+        warnings.append("motors: no sharp thrust transient; the lag is the whole-flight correlation's, which the "
+                        "closed loop biases towards zero")
     report["warnings"] = warnings
     for w in warnings:
         log.warning("%s: %s", name, w)

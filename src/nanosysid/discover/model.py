@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
 from pathlib import Path
 from typing import Any, Mapping, Sequence
 
@@ -13,7 +12,7 @@ import torch
 from torch import Tensor, nn
 
 from nanosysid import dynamics, effects
-from nanosysid.dataio import atomic_file, read_json_record
+from nanosysid.dataio import atomic_file, json_text, read_json_record
 from nanosysid.errors import DataError
 from nanosysid.rollout import advance_inputs, as_tensor, rollout
 from nanosysid.vehicle import Vehicle
@@ -101,7 +100,7 @@ def save_discovered(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[
                "effects": {k: dict(v) for k, v in effects.items()}, "delay": float(delay), "dt": dt,
                "substeps": substeps}
     with atomic_file(Path(path)) as tmp:
-        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+        tmp.write_text(json_text(payload))
     return payload
 
 

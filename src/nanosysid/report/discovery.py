@@ -3,13 +3,12 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from nanosysid.dataio import atomic_file
+from nanosysid.dataio import atomic_file, json_text
 from nanosysid.discover import CHANNELS, LIBRARY, VERDICTS, DiscoveryResult
 from nanosysid.discover.analysis import BANDS, REGIMES
 from nanosysid.metrics import QUANTITIES
@@ -245,7 +244,7 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
         tmp.write_text("\n".join(L))
     summary = result_dict(result)
     with atomic_file(out / "result.json") as tmp:
-        tmp.write_text(json.dumps(summary, indent=1) + "\n")
+        tmp.write_text(json_text(summary))
     with atomic_file(out / "verdicts.md") as tmp:
         tmp.write_text(verdicts_markdown(summary["findings"]) + "\n")
 
