@@ -48,7 +48,7 @@ params: $(STAMP)
 
 repro: params toolchain
 	env $(PINNED) $(BIN)/dvc repro
-	$(BIN)/python -m nanosysid.report.readme --sections results
+	$(BIN)/python -m nanosysid.report.readme --sections results physics
 
 # every benchmark's figures into reports/bench.json, and from there into the README;
 # `make bench NAMES="simulate_batch discover_speed"` reruns only those

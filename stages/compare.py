@@ -7,12 +7,13 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from nanosysid import benchmark
-from nanosysid.dataio import atomic_file, json_text
+from nanosysid import benchmark, identify
+from nanosysid.dataio import atomic_file, json_text, read_flight_csv
 from nanosysid.report import paper, tables
+from nanosysid.sim.simulator import collective_thrust_coefficient
 from nanosysid.sim.stats import stats_markdown, trajectory_stats
 from nanosysid.sim.world import DEFAULT_WORLD, DEPENDS_ON, EFFECTS
-from stages.common import plain, run_stage
+from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.compare")
 
@@ -29,6 +30,15 @@ def world_markdown(strengths: dict[str, float]) -> str:
     return "\n".join(L) + "\n"
 
 
+def nature_thrust_coefficient(direct_dir: Path, names: list[str]) -> float | None:
+    """:func:`~nanosysid.sim.simulator.collective_thrust_coefficient` of the flights ``names`` of
+    the simulator's direct output (None where they are not there)."""
+    files = [direct_dir / f"{n}.csv" for n in names]
+    if not names or not all(f.exists() for f in files):
+        return None
+    return collective_thrust_coefficient([read_flight_csv(f) for f in files])
+
+
 def main(cfg: DictConfig) -> None:
     """``<paths.sim_report>/stats.md`` (and ``stats.json``: the figures and each criterion's verdict)."""
     names = [m for m in paper.PAPER_MODELS if m in cfg.models]
@@ -42,6 +52,13 @@ def main(cfg: DictConfig) -> None:
     if source.startswith("sim"):
         parts.append(world_markdown(plain(cfg.sim.effects)))
     parts.append(stats_markdown(trajectory_stats(bench.train + bench.test)).replace("# ", "## ", 1))
+    if source.startswith("sim"):
+        params = identify.load_params(Path(cfg.identify.out_dir) / "params.json")
+        vehicle = vehicle_of(cfg)
+        paper.compare_identification(comparison, params, k_f=vehicle.k_f, k_m=vehicle.k_m,
+                                     k_f_thrust=nature_thrust_coefficient(Path(cfg.sim.out_dir) / "csv",
+                                                                         params["train_flights"]))
+        parts.append(paper.identification_markdown(comparison))
     parts.append(paper.results_markdown(comparison))
     out = Path(cfg.paths.sim_report)
     with atomic_file(out / "stats.md") as tmp:

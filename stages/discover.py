@@ -14,6 +14,7 @@ from nanosysid.effects import entry
 from nanosysid.identify import identified_vehicle
 from nanosysid.models import build_from_options
 from nanosysid.report.discovery import write_report
+from nanosysid.sim.world import DEFAULT_WORLD, DEPENDS_ON
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.discover")
@@ -24,7 +25,14 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     k_M; write ``<discover.out_dir>/model.json`` and ``<discover.report_dir>/`` (report,
     result, figures)."""
     dc = cfg.discover
-    oracle = None if dc.oracle is None else build_from_options(plain(dc.oracle))
+    oracle = limit = None
+    if dc.oracle is not None:
+        options = plain(dc.oracle)
+        oracle = build_from_options(options)
+        # the limit of a model of the state: the true dynamics without the effects of time
+        state = {k: v for k, v in dict(options.get("effects") or DEFAULT_WORLD).items()
+                 if not DEPENDS_ON.get(k, "").startswith("time")}
+        limit = build_from_options({**options, "effects": state, "seed": int(options.get("seed", 0))})
     H = int(cfg.eval.horizon)
     bench = benchmark.load(cfg.paths.split, horizon=H)
     vehicle = identified_vehicle(vehicle_of(cfg), dc.identified)
@@ -32,7 +40,7 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     result = discover.run(bench.train, bench.test, vehicle=vehicle, alpha=float(dc.alpha), share=float(dc.share),
                           block=float(dc.block), folds=int(dc.folds), sindy=bool(dc.sindy),
                           delays=tuple(delays), window=int(dc.savgol_window), order=int(dc.savgol_order), horizon=H,
-                          oracle=oracle, batch_size=int(cfg.eval.batch_size))
+                          oracle=oracle, limit=limit, batch_size=int(cfg.eval.batch_size))
     step = result.model.step
     effects = {name: {"params": list(entry(name).params), "coefficients": coef}
                for name, coef in step.coefficients().items()}

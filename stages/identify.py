@@ -6,6 +6,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from nanosysid import benchmark, identify
+from nanosysid.dataio import parse_flight_name, read_flight_csv
 from nanosysid.errors import DataError
 from nanosysid.viz.identify import identify_figure
 from stages.common import run_stage, vehicle_of
@@ -19,15 +20,37 @@ def main(cfg: DictConfig) -> None:
     if not bench.train:
         raise DataError(f"{Path(cfg.paths.split) / 'train'}: no flight CSV files to fit k_F and k_M on")
     vehicle = vehicle_of(cfg)
-    thrust, yaw = identify.identify(bench.train, vehicle, window=int(c.savgol_window), polyorder=int(c.savgol_order))
+    window, order = int(c.savgol_window), int(c.savgol_order)
+    thrust, yaw_paper = identify.identify(bench.train, vehicle, window=window, polyorder=order)
+    calibration = calibration_flights(Path(cfg.data.flights_dir), list(c.calibration))
+    yaw = yaw_paper
+    if calibration:
+        yaw = identify.fit_yaw_moment_iv(calibration, vehicle, window=window, polyorder=order,
+                                         lags=[float(x) for x in c.iv_lags], blocks=int(c.iv_blocks))
     out = Path(c.out_dir)
-    identify.save_params(out / "params.json", thrust, yaw, bench.train)
-    for name, fit in (("k_F", thrust), ("k_M", yaw)):
+    identify.save_params(out / "params.json", thrust, yaw, bench.train, yaw_paper=yaw_paper if calibration else None,
+                         calibration=calibration)
+    for name, fit in (("k_F", thrust), ("k_M", yaw)) + ((("k_M, the paper's method", yaw_paper),) if calibration else ()):
         lo, hi = fit.ci95 if fit.ci95 is not None else (float("nan"), float("nan"))
-        log.info("%s = %.4g (95 %% interval %.4g to %.4g over %d flights; R^2 %.2f), by %s", name, fit.coef, lo, hi,
-                 fit.flights, fit.r2, fit.estimator)
-    log.warning("closed-loop bias %s", identify.CLOSED_LOOP_BIAS)
+        log.info("%s = %.4g (95 %% interval %.4g to %.4g; R^2 %.2f), by %s", name, fit.coef, lo, hi, fit.r2,
+                 fit.estimator)
+    if not calibration:
+        log.warning("no calibration flight (trajectories %s in %s): closed-loop bias %s", list(c.calibration),
+                    cfg.data.flights_dir, identify.CLOSED_LOOP_BIAS)
     identify_figure(bench.test[0], vehicle, thrust, yaw, out / "identify.png")
+
+
+def calibration_flights(folder: Path, trajectories: list[str]) -> list:
+    """The flights of ``folder`` (searched below it) whose trajectory is one of ``trajectories``."""
+    found = []
+    for f in sorted(folder.rglob("*.csv")) if folder.is_dir() else []:
+        try:
+            trajectory, _ = parse_flight_name(f.stem)
+        except ValueError:
+            continue
+        if trajectory in trajectories:
+            found.append(read_flight_csv(f))
+    return found
 
 
 if __name__ == "__main__":

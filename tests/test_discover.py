@@ -60,6 +60,13 @@ def drag_above(t, x, om, om_dot):
     return force, torch.linalg.cross(arm, force)
 
 
+def yaw_gust(t, x, om, om_dot):
+    """A yaw torque of time alone (two slow sines of their own phases): no function of the state."""
+    torque = torch.zeros_like(x[..., :3])
+    torque[..., 2] = 4e-5 * (torch.sin(2 * math.pi * 0.31 * t + 1.0) + 0.7 * torch.sin(2 * math.pi * 0.83 * t))
+    return torch.zeros_like(torque), torque
+
+
 WORLDS = {
     "clean": ({}, None, 1),
     "delay": ({"telemetry_delay": 1.0}, None, 1),
@@ -73,6 +80,9 @@ WORLDS = {
     "catalogue": ({e: 1.0 for e in ("rotor_drag", "body_drag", "telemetry_delay", "com_offset", "motor_asymmetry",
                                     "rotor_inertia")}, None, 1),
     "two_drags": ({"rotor_drag": 1.0, "body_drag": 1.0}, None, 2),
+    # the inertia (+30, +30, +50) % off the nominal, with the rotors' drag and the propellers' gyro
+    "yaw_gust": ({}, yaw_gust, 1),
+    "yaw_inertia": ({"inertia_offset": 2.0, "rotor_drag": 1.0, "rotor_inertia": 1.0}, None, 3),
 }
 
 # the worlds whose plain SINDy model and disagreement analysis the tests read (each costs time)
@@ -254,3 +264,27 @@ def test_model_round_trips_through_its_file_and_reports(tmp_path):
     for i in range(1, len(r.findings) + 1):
         assert (tmp_path / "report" / "figures" / f"finding_{i}.png").read_bytes()[:4] == b"\x89PNG"
     assert math.isfinite(a.simerr["w"])
+
+
+def test_inertia_dependent_coefficients_are_applied_in_the_inertia_they_were_fitted_with():
+    # k_M, the rotor inertia and a drag's moment are fitted against the torque the gyro shows
+    # with the nominal inertia; the augmented model integrates with the corrected one. Applied
+    # in one parametrisation, the augmented model reaches the true dynamics on every column.
+    r = discovered("yaw_inertia")
+    assert {"inertia", "rotor_gyro"} <= entries(r), [(f.verdict, f.entry, f.alternatives) for f in r.findings]
+    for q in ("p", "v", "R", "w"):
+        assert r.after.simerr[q] <= 1.2 * r.oracle.simerr[q], (q, r.after.simerr, r.oracle.simerr)
+
+
+def test_a_disturbance_of_time_alone_is_said_to_be_no_function_of_the_state():
+    r = discovered("yaw_gust")
+    stateless = [f for f in r.findings if f.verdict == discover.STATELESS]
+    assert [f.channels for f in stateless] == [("tau_z",)], [(f.verdict, f.channels) for f in r.findings]
+    lo, hi = (float(x) for x in re.findall(r"[\d.]+", stateless[0].evidence["band"])[:2])
+    assert lo <= 0.83 and hi >= 0.31  # the band holds the gust's frequencies
+    assert abs(stateless[0].evidence["rms"] / (4e-5 * np.sqrt((1 + 0.7**2) / 2)) - 1) < 0.5
+
+
+def test_clean_world_has_nothing_that_is_not_a_function_of_the_state():
+    assert not [f for f in discovered("clean").findings if f.verdict == discover.STATELESS]
+

@@ -6,6 +6,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from nanosysid import config
@@ -21,8 +22,10 @@ ROOT = Path(__file__).resolve().parents[1]
 
 # two short simulated flights: enough for every stage, seconds to run
 TINY_SIM = [
-    "sim.runs={square: 0, random: 0, chirp: 2, melon: 2}",
+    "sim.runs={square: 0, random: 0, chirp: 2, melon: 2, yawsweep: 1}",
     "sim.flight.preroll=0.5",
+    "sim.flight.trajectories.yawsweep.duration=4.0",
+    "sim.flight.trajectories.yawsweep.fade=0.5",
     "sim.flight.trajectories.chirp.duration=3.0",
     "sim.flight.trajectories.melon={duration: 3.0, circle_time: 2.0, return_time: 0.5}",
     "export.mcu.start=10",
@@ -93,16 +96,22 @@ def tiny(tmp_path_factory):
 def test_simulate_records_bags_truth_and_direct_csvs(tiny):
     raw = tiny / "raw"
     assert sorted(p.name for p in (raw / "bags").iterdir()) == sorted(
-        f"{n}{s}" for n in ("chirp_20250601_run1", "chirp_20250601_run2", "melon_20250601_run1", "melon_20250601_run2")
+        f"{n}{s}" for n in ("chirp_20250601_run1", "chirp_20250601_run2", "melon_20250601_run1", "melon_20250601_run2",
+                            "yawsweep_20250601_run1")
         for s in ("", ".truth.json", ".truth.parquet"))
     csvs = sorted(str(p.relative_to(raw / "csv")) for p in (raw / "csv").rglob("*.csv"))
     assert csvs == ["chirp_20250601_run1.csv", "chirp_20250601_run2.csv", "melon_20250601_run1.csv",
-                    "melon_20250601_run2.csv"]
+                    "melon_20250601_run2.csv", "yawsweep_20250601_run1.csv"]
 
 
 def test_processed_flights_match_the_truth(tiny):
     flights = sorted(p.stem for p in (tiny / "flights").glob("*.csv"))
-    assert flights == ["chirp_20250601_run1", "chirp_20250601_run2", "melon_20250601_run1", "melon_20250601_run2"]
+    assert flights == ["chirp_20250601_run1", "chirp_20250601_run2", "melon_20250601_run1", "melon_20250601_run2",
+                       "yawsweep_20250601_run1"]
+    # the calibration flight keeps its yaw setpoint, which the benchmark's flights have no column for
+    cal = read_flight_csv(tiny / "flights" / "yawsweep_20250601_run1.csv")
+    assert np.abs(cal.extra["yaw_ref"]).max() > 0.1 and "yaw_ref" not in read_flight_csv(
+        tiny / "flights" / "melon_20250601_run1.csv").extra
     assert len(read_flight_csv(tiny / "flights" / "melon_20250601_run1.csv")) in range(299, 303)
     q = json.loads((tiny / "reports" / "quality.json").read_text())
     for row in q["flights"]:
@@ -131,6 +140,22 @@ def test_identify_writes_coefficients_and_figure(tiny):
     fit = json.loads((tiny / "physics" / "params.json").read_text())
     assert abs(fit["k_f"] / 3.72e-8 - 1) < 0.03 and fit["thrust_fit"]["r2"] > 0.9
     assert fit["train_flights"] == ["chirp_20250601_run1", "chirp_20250601_run2"]
+    # the yaw calibration flight went through the recording chain with its setpoint: k_M by
+    # instrumental variables, the paper's least squares beside it
+    assert fit["calibration_flights"] == ["yawsweep_20250601_run1"]
+    assert fit["yaw_fit"]["estimator"].startswith("instrumental variables")
+    assert "least squares" in fit["yaw_fit_paper_method"]["estimator"]
+    lo, hi = fit["thrust_fit"]["ci95"]
+    assert lo < fit["k_f"] < hi
+
+
+def test_identify_without_a_calibration_flight_names_its_estimator_and_the_bias_risk(tiny, tmp_path):
+    # a user's CSVs (here the training flights alone): no flight with yaw excitation
+    assert run(identify, tiny, f"data.flights_dir={tiny / 'split' / 'train'}", f"identify.out_dir={tmp_path}") == 0
+    fit = json.loads((tmp_path / "params.json").read_text())
+    assert fit["calibration_flights"] == [] and "yaw_fit_paper_method" not in fit
+    assert "least squares" in fit["yaw_fit"]["estimator"] and fit["closed_loop_bias"].startswith("possible")
+    assert fit["yaw_fit"]["ci95"] is not None
     assert (tiny / "physics" / "identify.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -229,7 +254,13 @@ def test_compare_sets_the_dataset_beside_the_paper(tiny):
             [simerr[m][k] / simerr["physics"][k] for k in "pvRw"], abs=5e-3)
         assert ratios[f"{m} / physics, paper"][0] == {"residual": "1.74", "phys_res": "1.02", "lstm": "2.57"}[m]
     record = json.loads((tiny / "sim" / "stats.json").read_text())
-    assert set(record["best"]) == set("pvRw") and len(record["checks"]) == 3
+    assert set(record["best"]) == set("pvRw") and len(record["checks"]) == 6
+    # the identification beside nature's coefficients and the paper's k_M
+    ident = record["identification"]
+    fit = json.loads((tiny / "physics" / "params.json").read_text())
+    assert ident["k_m"]["identified"] == fit["k_m"] and ident["k_m"]["paper"] == 7.73e-11
+    assert ident["k_m"]["paper_method"] == fit["yaw_fit_paper_method"]["coef"]
+    assert "| k_M, the paper's method |" in text.split("## Identification against nature")[1].split("\n## ")[0]
     naive_p10 = next(r for r in record["rows"] if r["model"] == "naive" and r["quantity"] == "p" and r["h"] == 10)
     assert naive_p10["paper"] == 0.1430
 

@@ -24,6 +24,32 @@ def test_readme_shows_the_results_the_lock_file_records():
     assert "| phys_res |" in part and "| oracle (physical limit) |" in part
 
 
+def test_readme_physics_section_is_the_compare_and_quality_reports_the_lock_file_records():
+    text = (ROOT / "README.md").read_text()
+    assert text.count(readme.PHYSICS_BEGIN) == 1 and text.count(readme.PHYSICS_END) == 1
+    part = text[text.index(readme.PHYSICS_BEGIN):text.index(readme.PHYSICS_END)]
+    sources = dict(re.findall(r"(\S+) md5 ([0-9a-f]{32})", part))
+    lock = yaml.safe_load((ROOT / "dvc.lock").read_text())
+    outs = {o["path"]: o["md5"] for st in ("compare", "quality") for o in lock["stages"][st]["outs"]}
+    assert sources == {p: outs[p] for p in ("reports/sim/stats.md", "reports/data/quality.md")}
+    assert "| k_M, the paper's method |" in part and "| phys_res / physics, ours |" in part
+    assert "| melon_20250601_run1 |" in part
+
+
+def test_physics_section_takes_the_sections_it_names(tmp_path):
+    stats = tmp_path / "stats.md"
+    stats.write_text("# The dataset\n\n## Identification against nature\n\nIDENT\n\n## Other\n\nNO\n\n"
+                     "## The pattern of the results: SimErr over the physics model's\n\nPATTERN\n\n## Verdict\n\nV\n")
+    quality = tmp_path / "quality.md"
+    quality.write_text("# Processed data against the simulator's truth\n\nQUALITY\n\n## The physics baseline\n\nNO\n")
+    md = tmp_path / "README.md"
+    md.write_text(f"a\n{readme.PHYSICS_BEGIN}\nold\n{readme.PHYSICS_END}\nb\n")
+    assert readme.update_physics(md, stats, quality)
+    text = md.read_text()
+    assert all(w in text for w in ("IDENT", "PATTERN", "QUALITY")) and "NO" not in text and "old" not in text
+    assert text.startswith("a\n") and text.endswith("\nb\n")
+
+
 def test_update_replaces_only_the_section(tmp_path):
     report = tmp_path / "reports" / "benchmark.md"
     report.parent.mkdir()

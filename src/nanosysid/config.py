@@ -132,6 +132,7 @@ _RULES: list[tuple[str, str]] = [
     ("sim.flight.*_rate", _POSITIVE), ("sim.flight.motor_tau", _POSITIVE), ("sim.flight.noise.*", _NONNEG),
     ("sim.recorder.*_rate", _POSITIVE),
     ("identify.savgol_window", _COUNT), ("identify.savgol_order", _NONNEG_COUNT),
+    ("identify.iv_blocks", _COUNT), ("identify.iv_lags", _NONNEG),
     ("discover.savgol_window", _COUNT), ("discover.savgol_order", _NONNEG_COUNT),
     ("discover.threshold", _NONNEG), ("discover.delay_step", _POSITIVE), ("discover.delay_max", _NONNEG),
     ("export.onnx_samples", _COUNT), ("export.onnx_tolerance", _POSITIVE),

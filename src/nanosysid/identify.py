@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
 
@@ -36,15 +36,16 @@ from scipy.signal import savgol_filter
 from scipy.stats import t as student_t
 
 from nanosysid.dataio import atomic_file, Flight, json_text, read_json_record
+from nanosysid.dynamics import SPIN
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "identify", "body_torque", "yaw_regressor", "save_params",
+__all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "fit_yaw_moment_iv", "identify", "body_torque", "yaw_regressor", "save_params",
            "load_params", "identified_vehicle"]
 
 FORMAT = "nanosysid-identified-1"
-CLOSED_LOOP_BIAS = ("possible: both fits are least squares on closed-loop flights with no exogenous excitation of "
-                    "the yaw axis; the controller's answers to disturbances correlate the rotor speeds with the "
+CLOSED_LOOP_BIAS = ("possible: no calibration flight with yaw excitation, so k_M is least squares on closed-loop "
+                    "flights; the controller's answers to yaw disturbances correlate the rotor speeds with the "
                     "residual, which biases k_M (towards zero) beyond its interval")
 
 
@@ -67,6 +68,7 @@ class Fit:
     flights: int = 1
     condition: float = 1.0
     estimator: str = "least squares on closed-loop flights (the paper's method)"
+    terms: dict[str, float] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
@@ -137,18 +139,103 @@ def fit_yaw_moment(flights: Sequence[Flight], vehicle: Vehicle, *, window: int =
                   intercept=True)
 
 
+def _derivative(x: np.ndarray, dt: float, window: int, polyorder: int, deriv: int = 1) -> np.ndarray:
+    return savgol_filter(x, window, polyorder, deriv=deriv, delta=dt, axis=0)
+
+
+def _yaw_iv_columns(f: Flight, vehicle: Vehicle, *, window: int, polyorder: int,
+                    lags: Sequence[float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """One calibration flight's yaw torque ``y (T,)``, regressors ``X (T, 4)`` and instruments
+    ``Z (T, K)``, cut to the samples where every lagged instrument exists."""
+    dt = float(np.median(np.diff(f.t)))
+    spin = np.array(SPIN)
+    y = body_torque(f, vehicle.inertia, window=window, polyorder=polyorder)[:, 2]
+    omega_dot = _derivative(f.u, dt, window, polyorder)
+    X = np.column_stack((yaw_regressor(f.u), omega_dot @ spin, f.y[:, 12], np.ones(len(f))))
+    ref = f.extra["yaw_ref"]
+    derivs = [ref] + [_derivative(ref, dt, window, polyorder, d) for d in (1, 2, 3)]
+    shift = [int(round(lag / dt)) for lag in lags]
+    k0 = max(shift)
+    Z = np.column_stack([d[k0 - s:len(f) - s] for d in derivs for s in shift] + [np.ones(len(f) - k0)])
+    return y[k0:], X[k0:], Z
+
+
+def _two_stage(y: np.ndarray, X: np.ndarray, Z: np.ndarray) -> np.ndarray:
+    """Two-stage least squares: ``X`` projected on the instruments ``Z``, then ``y`` on that."""
+    X_hat = Z @ np.linalg.lstsq(Z, X, rcond=None)[0]
+    return np.linalg.solve(X_hat.T @ X, X_hat.T @ y)
+
+
+def fit_yaw_moment_iv(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, polyorder: int = 3,
+                      lags: Sequence[float] = (0.0, 0.1, 0.2, 0.3), blocks: int = 10) -> Fit:
+    """k_M by instrumental variables on calibration flights with yaw excitation.
+
+    The yaw torque reconstructed from the gyro is regressed on ``k_M (-O1^2 + O2^2 - O3^2 +
+    O4^2)``, the rotors' reaction to their own acceleration (``sum s_i dOmega_i/dt``, whose
+    coefficient is minus the rotor inertia), a yaw-damping term ``w_z`` and a constant. In
+    closed loop these regressors carry the controller's answers to the yaw disturbances; the
+    instruments do not: the yaw setpoint ``yaw_ref`` and its first three derivatives at the
+    given ``lags`` (s), exogenous by design. The interval is a delete-one-block jackknife over
+    ``blocks`` contiguous blocks of each flight (Student's t).
+
+    Raises:
+        DataError: a flight without a yaw setpoint (``yaw_ref`` column).
+    """
+    for f in flights:
+        if "yaw_ref" not in f.extra:
+            raise DataError(f"identify: calibration flight {f.name} has no yaw_ref column (the yaw setpoint)")
+    parts = [_yaw_iv_columns(f, vehicle, window=window, polyorder=polyorder, lags=lags) for f in flights]
+    y, X, Z = (np.concatenate([p[i] for p in parts]) for i in range(3))
+    beta = _two_stage(y, X, Z)
+    resid = y - X @ beta
+    # blocks of every flight, for the jackknife
+    label = np.concatenate([np.minimum(np.arange(len(p[0])) * blocks // len(p[0]), blocks - 1) + blocks * i
+                            for i, p in enumerate(parts)])
+    units = np.unique(label)
+    loo = np.array([_two_stage(y[label != b], X[label != b], Z[label != b])[0] for b in units])
+    n = len(units)
+    se = float(np.sqrt((n - 1) / n * ((loo - loo.mean()) ** 2).sum()))
+    half = float(student_t.ppf(0.975, n - 1)) * se
+    A = X / np.linalg.norm(X, axis=0)
+    return Fit(
+        coef=float(beta[0]),
+        stderr=float("nan"),
+        r2=float(1 - (resid @ resid) / ((y - y.mean()) ** 2).sum()),
+        intercept=float(beta[3]),
+        n=len(y),
+        jackknife_se=se,
+        ci95=(float(beta[0]) - half, float(beta[0]) + half),
+        flights=len(flights),
+        condition=float(np.linalg.cond(A)),
+        estimator=f"instrumental variables on {len(flights)} yaw calibration flight(s): the yaw setpoint and its "
+                  "derivatives as instruments; rotor-inertia and yaw-damping terms in the regression; interval by "
+                  f"jackknife over {n} blocks",
+        terms={"rotor_inertia": float(-beta[1]), "yaw_damping": float(beta[2])},
+    )
+
+
 def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, polyorder: int = 3) -> tuple[Fit, Fit]:
-    """The thrust fit (k_F) and the yaw-moment fit (k_M) on ``flights``."""
+    """The thrust fit (k_F) and the yaw-moment fit (k_M) on ``flights``, both by the paper's
+    method (least squares)."""
     if not flights:
         raise DataError("identify: no training flight to fit k_F and k_M on")
     return fit_thrust(flights, vehicle), fit_yaw_moment(flights, vehicle, window=window, polyorder=polyorder)
 
 
-def save_params(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Flight]) -> dict[str, Any]:
-    """Write ``params.json``: k_F and k_M, their fits, and the flights they were fitted on."""
+def save_params(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Flight], *,
+                yaw_paper: Fit | None = None, calibration: Sequence[Flight] = ()) -> dict[str, Any]:
+    """Write ``params.json``: k_F and k_M, their fits (estimator, 95 % interval, conditioning),
+    and the flights they were fitted on. ``yaw_paper`` is the paper's least-squares k_M, kept
+    beside ``yaw`` when another estimator gave k_M (from the ``calibration`` flights)."""
     payload = {"format": FORMAT, "k_f": thrust.coef, "k_m": yaw.coef, "thrust_fit": thrust.to_dict(),
                "yaw_fit": yaw.to_dict(), "train_flights": [f.name for f in flights],
-               "closed_loop_bias": CLOSED_LOOP_BIAS}
+               "calibration_flights": [f.name for f in calibration]}
+    if yaw_paper is not None:
+        payload["yaw_fit_paper_method"] = yaw_paper.to_dict()
+    payload["closed_loop_bias"] = CLOSED_LOOP_BIAS if not calibration else (
+        "k_M from the calibration flights by instrumental variables, which the controller's answers to "
+        "disturbances do not bias; k_F by least squares (the thrust loop is excited by every trajectory's "
+        "sharp thrust changes); yaw_fit_paper_method shows the paper's least squares on the same training flights")
     with atomic_file(Path(path)) as tmp:
         tmp.write_text(json_text(payload))
     return payload

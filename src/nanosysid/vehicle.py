@@ -17,7 +17,8 @@ class Vehicle:
         inertia: Diagonal of the body-frame inertia matrix (kg m^2), from Crazyflow.
         arm: Effective lever arm L (m): 50 mm centre-to-motor times cos(45 deg).
         k_f: Thrust coefficient (N s^2/rad^2), identified in the paper.
-        k_m: Moment coefficient (N m s^2/rad^2), identified in the paper.
+        k_m: Moment coefficient (N m s^2/rad^2): thrust-stand yaw torque per thrust (5.69 mm,
+            crazyflie-firmware's THRUST2TORQUE) times k_F; the paper's closed-loop fit is 7.73e-11.
         gravity: Gravitational acceleration (m/s^2).
     """
 
@@ -25,7 +26,7 @@ class Vehicle:
     inertia: tuple[float, float, float] = (2.3951e-5, 2.3951e-5, 3.2347e-5)
     arm: float = 0.03535
     k_f: float = 3.72e-8
-    k_m: float = 7.73e-11
+    k_m: float = 2.1177e-10
     gravity: float = 9.81
 
     @classmethod

@@ -28,7 +28,7 @@ import torch
 from nanosysid import so3
 
 __all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "World", "draw", "simulate", "judge", "check", "summarize",
-           "short_flights_config", "STRENGTH_BINS"]
+           "identification", "summarize_identification", "short_flights_config", "STRENGTH_BINS"]
 
 # world effect -> the library entries that describe it (any of its forms); a "named" verdict
 # is correct when the world has an effect it describes
@@ -48,6 +48,7 @@ STRENGTH_BINS = ((0.3, 0.7), (0.7, 1.5), (1.5, 3.0))
 TIME_VARYING = ("turbulence", "unsteady_thrust")  # no model of the state can know them
 TRAIN = ("square", "random", "chirp")
 TEST = "melon"
+CALIBRATION = "yawsweep"  # the yaw calibration flight of the identify step, no part of discovery's data
 K_F = 3.72e-8  # N s²/rad², the nominal thrust coefficient, for user effects that scale with thrust
 
 
@@ -134,6 +135,7 @@ def short_flights_config(duration: float = 20.0):
         "melon": {**default["melon"], "duration": duration, "circle_time": 0.75 * duration,
                   "return_time": 0.15 * duration},
         "chirp": {"duration": duration},
+        "yawsweep": {"duration": duration, "fade": min(3.0, 0.1 * duration)},
     }})
 
 
@@ -147,7 +149,7 @@ def simulate(worlds: Sequence[World], cfg=None, *, progress: bool = False) -> di
     cfg = cfg or short_flights_config()
     specs, keys = [], []
     for w in worlds:
-        for tr in (*TRAIN, TEST):
+        for tr in (*TRAIN, TEST, CALIBRATION):
             specs.append(sim.FlightSpec(trajectory=tr, run=1, effects=w.effects, seed=w.seed,
                                         extra_wrench=w.extra_wrench, name=f"{tr}_w{w.index}_run1"))
             keys.append((w.index, None))
@@ -180,14 +182,15 @@ def judge(world: World, flights: Sequence, without: dict | None = None, *, horiz
     from nanosysid import benchmark, discover, sim
     from nanosysid.errors import PredictionError
 
-    train = [f for f in flights if f.trajectory != TEST]
+    train = [f for f in flights if f.trajectory in TRAIN]
     test = [f for f in flights if f.trajectory == TEST]
+    ident = identification(world, flights)
     oracle = sim.oracle(world.effects, seed=world.seed, extra_wrench=world.extra_wrench)
     try:
         r = discover.run(train, test, oracle=oracle, sindy=True, analysis=False, horizon=horizon)
     except PredictionError as e:  # the augmented model diverges on the test flight: a failure of discovery
         return {"world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
-                "user_strength": world.user_strength, "error": str(e)}
+                "user_strength": world.user_strength, "error": str(e), "identify": ident}
     # each effect's impact: how far the nominal model's SimErr on the test flight moves when the
     # world loses that effect (largest relative change over the four quantities)
     impact = {}
@@ -216,7 +219,54 @@ def judge(world: World, flights: Sequence, without: dict | None = None, *, horiz
         "sindy_gap_closed": _relative_gap(r.before.simerr, r.sindy["simerr"], reachable),
         "sindy_terms": len(r.sindy["terms"]),
         "gap_share": float(sum((r.before.simerr[q] - reachable[q]) / r.before.simerr[q] for q in r.before.simerr) / 4),
+        "identify": ident,
     }
+
+
+def identification(world: World, flights: Sequence) -> dict[str, Any]:
+    """The sync and identify steps on one world's flights against the world's truth: the motor
+    telemetry's lag (the transients of all its flights, one session), then, with the rotor speeds
+    moved by it, k_F (least squares on the training flights) and k_M (instrumental variables on
+    the calibration flight; the paper's least squares on the training flights beside). Errors
+    relative to the truth, and whether each 95 % interval covers it; k_M counts as identifiable
+    where the world's inertia is the nominal one (the gyro's torque is read with it)."""
+    import dataclasses
+
+    import pandas as pd
+
+    from nanosysid import identify, sim
+    from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence
+    from nanosysid.sim.simulator import collective_thrust_coefficient
+    from nanosysid.vehicle import Vehicle
+
+    cfg = SyncConfig()
+    evidence = [motor_lag_evidence(f.name, pd.DataFrame({"t_src": f.t, "az": f.extra["az_body"]}),
+                                   pd.DataFrame({"t_src": f.t, **{f"m{i + 1}": f.u[:, i] for i in range(4)}}), cfg)
+                for f in flights]
+    lag = motor_lag_estimate(evidence, cfg)
+    truth_lag = sim.World(dict(world.effects)).telemetry_delay
+
+    def aligned(f):
+        return dataclasses.replace(f, u=np.column_stack([np.interp(f.t + lag.value, f.t, f.u[:, i]) for i in range(4)]))
+
+    train = [aligned(f) for f in flights if f.trajectory in TRAIN]
+    cal = [aligned(f) for f in flights if f.trajectory == CALIBRATION]
+    vehicle = Vehicle()
+    thrust = identify.fit_thrust(train, vehicle)
+    k_f_target = collective_thrust_coefficient([f for f in flights if f.trajectory in TRAIN])
+    out: dict[str, Any] = {
+        "lag_true": truth_lag, "lag": lag.value, "lag_error": lag.value - truth_lag, "lag_events": lag.events,
+        "lag_covered": None if lag.interval[0] is None else bool(lag.interval[0] <= truth_lag <= lag.interval[1]),
+        "k_f_error": thrust.coef / vehicle.k_f - 1,
+        "k_f_covered": bool(thrust.ci95[0] <= k_f_target <= thrust.ci95[1]),
+        "k_m_identifiable": "inertia_offset" not in world.effects,
+        "k_m_paper_error": identify.fit_yaw_moment(train, vehicle).coef / vehicle.k_m - 1,
+    }
+    if cal:
+        yaw = identify.fit_yaw_moment_iv(cal, vehicle, blocks=6)
+        out["k_m_error"] = yaw.coef / vehicle.k_m - 1
+        out["k_m_covered"] = bool(yaw.ci95[0] <= vehicle.k_m <= yaw.ci95[1])
+    return out
 
 
 def _check_chunk(worlds: Sequence[World], cfg, horizon: int) -> list[dict[str, Any]]:
@@ -290,4 +340,44 @@ def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict
         "sindy_gap_closed_median": None if not both else float(np.median([r["sindy_gap_closed"] for r in both])),
         "beats_sindy": None if not both else sum(r["gap_closed"] > r["sindy_gap_closed"] for r in both) / len(both),
         "sindy_terms_mean": float(np.mean([r["sindy_terms"] for r in rows])) if rows else None,
+        "identify": summarize_identification([r["identify"] for r in [*rows, *failed] if "identify" in r]),
+    }
+
+
+def summarize_identification(ident: Sequence[dict[str, Any]], *, lag_tolerance: float = 0.003,
+                             k_m_tolerance: float = 0.10, k_f_tolerance: float = 0.01) -> dict[str, Any]:
+    """The identification's figures over the worlds: the motor lag within ``lag_tolerance`` s,
+    k_M within ``k_m_tolerance`` (among the worlds that leave it identifiable) and k_F within
+    ``k_f_tolerance`` of the truth, how often each interval covers it, and the error quantiles."""
+    if not ident:
+        return {}
+
+    def share(xs):
+        xs = [x for x in xs if x is not None]
+        return None if not xs else float(np.mean(xs))
+
+    def quantiles(xs):
+        a = np.abs(np.asarray([x for x in xs if x is not None], dtype=float))
+        return None if not len(a) else {q: float(np.quantile(a, v)) for q, v in (("median", 0.5), ("p90", 0.9),
+                                                                                ("p95", 0.95), ("max", 1.0))}
+
+    km = [r for r in ident if "k_m_error" in r]
+    ok = [r for r in km if r["k_m_identifiable"]]
+    return {
+        "worlds": len(ident),
+        "lag_within": share(abs(r["lag_error"]) <= lag_tolerance for r in ident),
+        "lag_tolerance": lag_tolerance,
+        "lag_covered": share(r["lag_covered"] for r in ident),
+        "lag_abs_error": quantiles(r["lag_error"] for r in ident),
+        "k_f_within": share(abs(r["k_f_error"]) <= k_f_tolerance for r in ident),
+        "k_f_tolerance": k_f_tolerance,
+        "k_f_covered": share(r["k_f_covered"] for r in ident),
+        "k_f_abs_error": quantiles(r["k_f_error"] for r in ident),
+        "k_m_worlds": len(km),
+        "k_m_identifiable_worlds": len(ok),
+        "k_m_within": share(abs(r["k_m_error"]) <= k_m_tolerance for r in ok),
+        "k_m_tolerance": k_m_tolerance,
+        "k_m_covered": share(r["k_m_covered"] for r in km),
+        "k_m_abs_error": quantiles(r["k_m_error"] for r in ok),
+        "k_m_paper_abs_error": quantiles(r["k_m_paper_error"] for r in ident),
     }

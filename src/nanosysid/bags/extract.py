@@ -8,6 +8,7 @@ slightly out of order, and the source stamp is the time of the measurement.
 from __future__ import annotations
 
 import logging
+import math
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
@@ -56,8 +57,10 @@ def _status(m) -> list[float]:
 
 
 def _setpoint(m) -> list[float]:
-    p = m.pose.position
-    return [p.x, p.y, p.z]
+    p, q = m.pose.position, m.pose.orientation
+    # the heading of the reference orientation (zero for a position-only setpoint)
+    yaw = math.atan2(2 * (q.w * q.z + q.x * q.y), 1 - 2 * (q.y * q.y + q.z * q.z))
+    return [p.x, p.y, p.z, yaw]
 
 
 STREAM_COLUMNS: dict[str, list[str]] = {
@@ -66,7 +69,7 @@ STREAM_COLUMNS: dict[str, list[str]] = {
     "imu": ["wx", "wy", "wz", "ax", "ay", "az"],
     "motors": ["m1", "m2", "m3", "m4"],
     "status": ["battery_voltage", "armed", "flying"],
-    "setpoint": ["x", "y", "z"],
+    "setpoint": ["x", "y", "z", "yaw"],
 }
 _READERS: dict[str, Callable[[Any], list[float]]] = {
     "mocap": _pose, "odom": _odom, "imu": _imu, "status": _status, "setpoint": _setpoint,

@@ -128,5 +128,8 @@ def filter_flight(name: str, synced: pd.DataFrame, cfg: FilterConfig) -> tuple[F
         y=np.column_stack([out[c] for c in ("x", "y", "z", "vx", "vy", "vz", *QUAT, "wx", "wy", "wz")]),
         extra={c: out[c] for c in ACCEL_COLUMNS},
     )
+    if "yaw_ref" in synced and synced["yaw_ref"].to_numpy().any():
+        # the yaw setpoint of a calibration flight: a reference, not a measurement, kept as it is
+        flight.extra["yaw_ref"] = synced["yaw_ref"].to_numpy().copy()
     report = {"flight": name, "gaps_left": {k: [list(g) for g in v] for k, v in left.items()}}
     return flight, report

@@ -12,7 +12,7 @@ Streams (topics from the topic map):
   a few percent of packets lost;
 - motor telemetry at 100 Hz, stamped like the IMU but reading the rotor speeds ``motor_delay``
   earlier (plus the ``telemetry_delay`` effect), in units of 100 eRPM, some readings missed;
-- status at 10 Hz and the host's position setpoints at 50 Hz (zero outside the flight).
+- status at 10 Hz and the host's position and yaw setpoints at 50 Hz (zero outside the flight).
 
 Beside each bag, ``<flight>.truth.parquet`` holds the true signals on the STM32 tick lattice
 and ``<flight>.truth.json`` the clock relations and lags injected, so the processing chain can
@@ -230,10 +230,11 @@ def record_flight(
     tau_s = np.arange(math.ceil(tau0 * cfg.setpoint_rate), math.floor(tau1 * cfg.setpoint_rate) + 1) / cfg.setpoint_rate
     inside = (tau_s >= 0) & (tau_s <= raw.durations[i])
     p_ref = interp_columns(tau_all, raw.p_ref[i], tau_s) * inside[:, None]
-    ident = np.array([0.0, 0.0, 0.0, 1.0])
+    half_yaw = 0.5 * np.interp(tau_s, tau_all, raw.yaw_ref[i]) * inside
+    q_ref = np.column_stack((np.zeros((len(tau_s), 2)), np.sin(half_yaw), np.cos(half_yaw)))  # about z, xyzw
     streams["setpoint"] = _Stream(
         topics["setpoint"]["topic"], topics["setpoint"]["type"], host(tau_s),
-        [PoseStamped(header=_header(store, host(t), "world"), pose=pose(p, ident)) for t, p in zip(tau_s, p_ref)],
+        [PoseStamped(header=_header(store, host(t), "world"), pose=pose(p, q)) for t, p, q in zip(tau_s, p_ref, q_ref)],
     )
 
     _write_bag(bag_dir, streams, store)

@@ -348,6 +348,9 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
         out[c] = np.interp(t, t_mc, mocap[c].to_numpy())
     q = mocap[["qx", "qy", "qz", "qw"]].to_numpy()
     out[["qx", "qy", "qz", "qw"]] = Slerp(t_mc, Rotation.from_quat(q))(t).as_quat()
+    # the host's yaw setpoint (zero outside the flight), held between its messages
+    t_sp = host_to_stm(setp["t_src"].to_numpy())
+    out["yaw_ref"] = setp["yaw"].to_numpy()[np.clip(np.searchsorted(t_sp, t + 1e-9) - 1, 0, len(t_sp) - 1)]
     for k, m in masks.items():
         out[f"miss_{k}"] = m
 

@@ -46,10 +46,16 @@ significantly more than nothing is an **unnamed** finding, and its sparse terms 
 augmented model. Anything that does not pass these tests is below the noise floor and is not a
 finding.
 
-**The numbers of a finding.** Its coefficients are fitted on every block; their 95 % intervals
-come from the same folds (a delete-a-fold jackknife of the physical values, with Student's t for
-the folds' number), and its stability is the share of the folds on which it beats, held out,
-every other eligible candidate of its round.
+**The numbers of a finding.** Its coefficients are fitted on every block, in the true body's
+units: where the inertia correction is chosen, every other torque column is scaled by
+``J / (J + dJ)`` and refitted until ``dJ`` settles, so k_M, a rotor inertia or a damping is the
+one the augmented model (which integrates with ``J + dJ``) must apply. Their 95 % intervals
+take both kinds of uncertainty: the folds' scatter (a delete-a-fold jackknife of the physical
+values, Student's t for the folds' number) around the range the value takes when each plausible
+rival (an eligible candidate the selection passed over) joins the fit, which the folds cannot
+show: a collinear or misspecified column biases a coefficient the same way in every fold. Its
+stability is the share of the folds on which it beats, held out, every other eligible candidate
+of its round.
 """
 
 from __future__ import annotations
@@ -72,9 +78,10 @@ from nanosysid.errors import DataError, PredictionError
 from nanosysid.metrics import QUANTITIES
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["run", "Finding", "DiscoveryResult", "LIBRARY", "CHANNELS", "VERDICTS"]
+__all__ = ["run", "Finding", "DiscoveryResult", "LIBRARY", "CHANNELS", "VERDICTS", "STATELESS"]
 
-VERDICTS = ("named", "ambiguous", "unnamed")
+VERDICTS = ("named", "ambiguous", "unnamed", "not a function of the state")
+STATELESS = VERDICTS[3]
 
 
 @dataclass
@@ -91,8 +98,9 @@ class Finding:
             the augmented model uses (ambiguous), of the generic terms kept (unnamed).
         evidence: ``heldout_gain`` (share of the nominal residual's weighted sum of squares,
             held out), ``z``, ``p`` (Bonferroni-adjusted), ``blocks_improved`` / ``blocks``,
-            ``stderr`` and ``ci`` (95 %: jackknife over the folds, Student's t with one degree of
-            freedom fewer than folds) per coefficient,
+            ``stderr`` (jackknife over the folds) and ``ci`` per coefficient (95 %: the range
+            its value takes when each plausible rival joins the fit, widened by the folds'
+            interval, Student's t with one degree of freedom fewer than folds), ``rival_range``,
             ``stability`` (share of the held-out folds on which it beats every other eligible
             candidate of its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
             ``band``, and ``added`` False where its terms would make the training rollouts
@@ -135,6 +143,7 @@ class DiscoveryResult:
     oracle: benchmark.Scores | None = None
     sindy: dict[str, Any] | None = None
     analysis: dict[str, Any] = field(default_factory=dict)
+    limit: benchmark.Scores | None = None
 
     @property
     def found(self) -> list[Finding]:
@@ -265,6 +274,79 @@ class _Search:
         return out, chosen
 
 
+def _true_torque_grams(search: _Search, g: Grams, chosen: Sequence[str], cols: np.ndarray, vehicle: Vehicle,
+                       iterations: int = 8) -> Grams:
+    """The normal equations in which every torque coefficient is in the true body's units.
+
+    The measured torque is ``J dw/dt + w x Jw`` with the *nominal* J. Where the body's inertia
+    is ``J + dJ``, every torque the rotors and the effects exert shows up in it shrunk by
+    ``J / (J + dJ)`` per axis: a k_M refit or a rotor inertia fitted there is the true one
+    times that ratio, and one rotor inertia cannot serve the roll/pitch gyroscopic torque and
+    the yaw reaction at once when the ratios differ by axis. The augmented model integrates
+    with ``J + dJ``, so the torque columns of every entry but the inertia correction itself are
+    scaled by ``J / (J + dJ)`` and the fit is repeated with the ``dJ`` it finds (a fixed point,
+    reached in a few rounds): the coefficients are then the true body's, one parametrisation
+    for the fit and the model.
+    """
+    if "inertia" not in chosen:
+        return g
+    J = np.asarray(vehicle.inertia)
+    own = np.concatenate([search.offsets[n] for n in [NOMINAL.name, *chosen] if n == "inertia"])
+    scale = np.ones((6, g.P))
+    fitted = g
+    for _ in range(iterations):
+        c = np.array(split_coefficients([NOMINAL.name, *chosen], fitted.solve(cols))["inertia"])
+        ratio = np.clip((J - c) / J, 0.2, 5.0)  # J / (J + dJ), with dJ = c J / (J - c)
+        new = np.ones((6, g.P))
+        new[3:, :] = ratio[:, None]
+        new[3:, own] = 1.0
+        if np.allclose(new, scale, rtol=1e-6):
+            break
+        scale = new
+        fitted = g.scaled(scale)
+    return fitted
+
+
+def _stateless(left: np.ndarray, search: _Search, alpha: float, floor: float, total: float) -> list[Finding]:
+    """The channels whose residual ``left`` (weighted: noise floors) stays above the noise after
+    the entries and the generic terms of the state: the one-sided Wilcoxon test that the blocks'
+    mean squares exceed 1 (the noise's), Bonferroni over the six channels, and a size of at least
+    ``floor`` (the root of the excess mean square). Each is a finding "not a function of the
+    state", with the frequency band holding the middle half of its power."""
+    B = int(search.blocks.max()) + 1
+    counts = np.bincount(search.blocks, minlength=B)
+    dt = float(np.median(np.diff(search.flights[0].t)))
+    out = []
+    for c in range(6):
+        ms = np.bincount(search.blocks, weights=left[:, c] ** 2, minlength=B) / np.maximum(counts, 1)
+        excess = (ms - 1.0) * counts
+        z, p = _pvalue(excess)
+        p = min(1.0, 6 * p)
+        size = float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()))
+        if p > alpha or size < floor:
+            continue
+        out.append(Finding(STATELESS, None, (CHANNELS[c],), {}, {
+            "heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
+            "blocks_improved": int((excess > 0).sum()), "blocks": B, "band": _band(left[:, c], search.blocks, dt),
+            "rms": float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()) / search.weights[c])}))
+    return out
+
+
+def _band(x: np.ndarray, blocks: np.ndarray, dt: float) -> str:
+    """The frequency band (Hz) between the quartiles of the power of ``x``, from the spectra of
+    its blocks."""
+    psd, freqs = 0.0, None
+    for b in np.unique(blocks):
+        seg = x[blocks == b]
+        seg = seg - seg.mean()
+        spec = np.abs(np.fft.rfft(seg * np.hanning(len(seg)), n=256)) ** 2
+        psd = psd + spec
+        freqs = np.fft.rfftfreq(256, dt)
+    cum = np.cumsum(psd) / max(np.sum(psd), 1e-300)
+    lo, hi = freqs[np.searchsorted(cum, 0.25)], freqs[min(np.searchsorted(cum, 0.75), len(freqs) - 1)]
+    return f"{lo:.2g}-{hi:.2g} Hz"
+
+
 def _channels_of(search: _Search, name: str, theta: np.ndarray, delay: float) -> tuple[str, ...]:
     """Channels where an entry's fitted wrench carries at least a fifth of its largest (in noise units)."""
     X = np.concatenate([fd.features[name] for fd in search.data(delay)])
@@ -278,7 +360,8 @@ def _channels_of(search: _Search, name: str, theta: np.ndarray, delay: float) ->
 def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehicle: Vehicle | None = None,
         alpha: float = 0.01, floor: float = 0.25, share: float = 0.5, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005),
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
-        oracle: Any = None, analysis: bool = True, sindy: bool = False, batch_size: int = 8192) -> DiscoveryResult:
+        oracle: Any = None, limit: Any = None, analysis: bool = True, sindy: bool = False,
+        batch_size: int = 8192) -> DiscoveryResult:
     """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
 
     Args:
@@ -295,6 +378,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         block: Block length (s); folds: number of folds the blocks are dealt to.
         horizon: Benchmark horizon.
         oracle: A predictor with the true dynamics (simulated data), scored for reference.
+        limit: The limit a model of the state can reach: the true dynamics without the effects
+            that are not functions of the state (simulated data), scored for reference.
         analysis: Also compute where the models disagree (per channel, regime, band, rollout).
         sindy: Also fit and score the plain SINDy discrepancy model (generic terms only, no names).
     """
@@ -381,11 +466,22 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     # final coefficients on every block, uncertainty by jackknife over the folds
     g = search.grams(delay)
     cols = search.cols(chosen)
+    theta_measured = g.solve(cols)
+    g = _true_torque_grams(search, g, chosen, cols, v)
     theta = g.solve(cols)
     _, thetas = g.heldout(cols)
     names = [NOMINAL.name, *chosen]
     coef = split_coefficients(names, theta)
     fold_coef = [split_coefficients(names, t) for t in thetas]
+    # the same fit with each plausible rival added (the eligible candidates the selection passed
+    # over): a coefficient that moves when a rival joins is uncertain by that much beyond the
+    # folds' scatter (collinear or misspecified columns bias it; the folds cannot show a bias)
+    rivals = sorted({n for pk in picks for n in pk["competitors"] + [pk["name"]]} - set(chosen) - {DELAY.name})
+    rival_coef = []
+    for n in rivals:
+        alt_cols = search.cols(chosen + [n])
+        alt_g = _true_torque_grams(search, search.grams(delay), chosen + [n], alt_cols, v)
+        rival_coef.append(split_coefficients(names + [n], alt_g.solve(alt_cols)))
     findings: list[Finding] = []
     named_later = set(chosen) | ({DELAY.name} if delay else set())
     for pk in kept:
@@ -403,11 +499,16 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             se = _jackknife(np.array([c.values(fc[name], v) for fc in fold_coef]))
             stderr = dict(zip(c.params, (float(x) for x in se)))
             channels = _channels_of(search, name, th, delay)
+            spread = np.array([list(params.values())] + [c.values(rc[name], v) for rc in rival_coef])
         alts = [a for a in pk["alternatives"] if a not in named_later]
         ev = {k: pk[k] for k in ("round", "heldout_gain", "size", "z", "p", "blocks_improved", "blocks")}
         ev["stderr"] = stderr
         half = {k: _half_width(stderr[k], search.folds) for k in params}
-        ev["ci"] = {k: (params[k] - half[k], params[k] + half[k]) for k in params}
+        if c is DELAY:
+            ev["ci"] = {k: (params[k] - half[k], params[k] + half[k]) for k in params}
+        else:
+            ev["rival_range"] = {k: (float(spread[:, i].min()), float(spread[:, i].max())) for i, k in enumerate(params)}
+            ev["ci"] = {k: (ev["rival_range"][k][0] - half[k], ev["rival_range"][k][1] + half[k]) for k in params}
         ev["stability"] = _stability(search, chosen, name, pk["competitors"], delay)
         if "generic_share" in pk:
             ev["generic_share"] = pk["generic_share"]
@@ -424,6 +525,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     gains = generic.heldout_gain(terms, resid, search.blocks, g.fold)
     extra_terms: dict[str, float] = {}
     generic_fits: list[tuple[int, np.ndarray]] = []
+    state_fit: dict[int, np.ndarray] = {}
     for c in range(6):
         z, p = _pvalue(gains[:, c])
         p = min(1.0, 6 * p)
@@ -434,11 +536,17 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         raw, shown = generic.terms_of(coef_c, lib, [c], search.weights)
         if not raw:
             continue
+        state_fit[c] = terms @ coef_c[0]
         extra_terms.update(raw)
         generic_fits.append((c, coef_c[0] / search.weights[c]))
         findings.append(Finding("unnamed", None, (CHANNELS[c],), shown, {
             "heldout_gain": float(gains[:, c].sum() / total), "size": size, "z": z, "p": p,
             "blocks_improved": int((gains[:, c] > 0).sum()), "blocks": int(len(gains))}))
+    # what neither an entry nor the generic terms of the state explain, channel by channel: a
+    # residual above the noise floor that no function of the state captures (a disturbance of
+    # its own time, say) is said, never left silent
+    left = resid - np.column_stack([state_fit.get(c, np.zeros(len(resid))) for c in range(6)])
+    findings += _stateless(left, search, alpha, floor, total)
     findings.sort(key=lambda f: -f.evidence["heldout_gain"])
 
     dk_f, dk_m = coef[NOMINAL.name]
@@ -461,12 +569,14 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     ref = benchmark.evaluate(oracle, test_flights, horizon=horizon, batch_size=batch_size) if oracle else None
     result = DiscoveryResult(findings, before, after, model, nominal, augmented_vehicle, rounds, alpha, floor,
                              search.noise, ref)
+    if limit is not None:
+        result.limit = benchmark.evaluate(limit, test_flights, horizon=horizon, batch_size=batch_size)
     if sindy:
         result.sindy = _sindy_baseline(search, v, test_flights, horizon, batch_size)
     if analysis:
         from nanosysid.discover.analysis import disagreement
 
-        result.analysis = disagreement(result, search, names, theta, delay, test_flights,
+        result.analysis = disagreement(result, search, names, theta_measured, delay, test_flights,
                                        generic_fits=generic_fits, horizon=horizon, batch_size=batch_size)
     return result
 

@@ -167,6 +167,17 @@ class Grams:
         self.folds = folds
         self.Gt, self.ht, self.et = self.G.sum(1), self.h.sum(1), self.e.sum(1)  # channels summed
 
+    def scaled(self, scale: np.ndarray) -> "Grams":
+        """The same normal equations with every column scaled per channel: column ``p`` times
+        ``scale[c, p]`` on channel ``c`` (``scale`` ``(6, P)``)."""
+        g = object.__new__(Grams)
+        g.G = self.G * scale[None, :, :, None] * scale[None, :, None, :]
+        g.h = self.h * scale[None]
+        g.e = self.e
+        g.B, g.P, g.fold, g.folds = self.B, self.P, self.fold, self.folds
+        g.Gt, g.ht, g.et = g.G.sum(1), g.h.sum(1), g.e.sum(1)
+        return g
+
     def solve(self, cols: np.ndarray, blocks: np.ndarray | None = None) -> np.ndarray:
         """Coefficients of columns ``cols`` fitted on ``blocks`` (all when None)."""
         idx = slice(None) if blocks is None else blocks

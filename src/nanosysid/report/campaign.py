@@ -40,6 +40,28 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
           f"- plain SINDy: median gap closed {_pct(summary['sindy_gap_closed_median'])}, "
           f"{summary['sindy_terms_mean']:.1f} terms on average; discovery closes more of the gap in "
           f"{_pct(summary['beats_sindy'])} of the worlds", ""]
+    idn = summary.get("identify") or {}
+    if idn:
+        def q(d, scale, unit):
+            return "–" if not d else (f"median {scale * d['median']:.3g} {unit}, 90 % {scale * d['p90']:.3g} {unit}, "
+                                      f"95 % {scale * d['p95']:.3g} {unit}")
+
+        L += ["## Identification over the worlds", "",
+              "The sync step's motor lag (sharp thrust transients of the world's flights, one session) and the identify "
+              "step (k_F by least squares on the training flights; k_M by instrumental variables on a yaw calibration "
+              "flight) on each world's flights, against its truth. k_M counts as identifiable where the world's inertia "
+              "is the nominal one.", "",
+              f"- motor lag: within {1e3 * idn['lag_tolerance']:g} ms in {_pct(idn['lag_within'])} of "
+              f"{idn['worlds']} worlds; interval covers the truth in {_pct(idn['lag_covered'])}; "
+              f"absolute error {q(idn['lag_abs_error'], 1e3, 'ms')}",
+              f"- k_F: within {100 * idn['k_f_tolerance']:g} % in {_pct(idn['k_f_within'])}; interval covers nature's "
+              f"thrust per sum of squared rotor speeds in {_pct(idn['k_f_covered'])}; absolute error "
+              f"{q(idn['k_f_abs_error'], 100, '%')}",
+              f"- k_M: within {100 * idn['k_m_tolerance']:g} % in {_pct(idn['k_m_within'])} of the "
+              f"{idn['k_m_identifiable_worlds']} worlds that leave it identifiable; interval covers the truth in "
+              f"{_pct(idn['k_m_covered'])} of all {idn['k_m_worlds']}; absolute error {q(idn['k_m_abs_error'], 100, '%')}",
+              f"- k_M by the paper's least squares on the training flights: absolute error "
+              f"{q(idn['k_m_paper_abs_error'], 100, '%')}", ""]
     return "\n".join(L)
 
 
@@ -62,6 +84,8 @@ def worlds_table(rows: Sequence[dict[str, Any]], effects: Sequence[str]) -> pd.D
             v = r.get(k)
             row[k] = float("nan") if v is None else float(v)
         row["sindy_terms"] = int(r.get("sindy_terms", 0))
+        for k, v in r.get("identify", {}).items():
+            row[f"identify_{k}"] = float("nan") if v is None else float(v)
         for model, scores in r.get("simerr", {}).items():
             row.update({f"simerr_{model}_{q}": float(v) for q, v in scores.items()})
         out.append(row)

@@ -21,14 +21,17 @@ __all__ = ["write_report", "result_dict", "gap_closed", "verdicts_markdown"]
 _QLABEL = {"p": "position", "v": "velocity", "R": "orientation", "w": "angular velocity"}
 
 
-def gap_closed(result: DiscoveryResult) -> dict[str, float | None]:
-    """Share of the nominal-to-oracle SimErr gap the augmented model closes, per quantity
-    (None without an oracle, or where the oracle is no better than the nominal model)."""
-    if result.oracle is None:
+def gap_closed(result: DiscoveryResult, reference: str = "oracle") -> dict[str, float | None]:
+    """Share of the gap between the nominal model's SimErr and the reference's (``"oracle"``:
+    the true dynamics; ``"limit"``: the true dynamics of the state alone) the augmented model
+    closes, per quantity (None without the reference, or where it is no better than the
+    nominal model)."""
+    if getattr(result, reference) is None:
         return {k: None for k in QUANTITIES}
+    ref = getattr(result, reference)
     out = {}
     for k in QUANTITIES:
-        gap = result.before.simerr[k] - result.oracle.simerr[k]
+        gap = result.before.simerr[k] - ref.simerr[k]
         out[k] = None if gap <= 0 else float((result.before.simerr[k] - result.after.simerr[k]) / gap)
     return out
 
@@ -51,9 +54,11 @@ def result_dict(result: DiscoveryResult) -> dict[str, Any]:
         "vehicle": dataclasses.asdict(result.vehicle),
         "simerr": {"nominal": result.before.simerr, "discovered": result.after.simerr,
                    **({"oracle": result.oracle.simerr} if result.oracle else {}),
+                   **({"state_limit": result.limit.simerr} if result.limit else {}),
                    **({"sindy": result.sindy["simerr"]} if result.sindy else {})},
         **({"sindy_terms": result.sindy["terms"]} if result.sindy else {}),
         "gap_closed": gap_closed(result),
+        "gap_closed_state_limit": gap_closed(result, "limit"),
         "analysis": {k: v for k, v in result.analysis.items() if k != "scatter"},
     }
 
@@ -79,6 +84,12 @@ def _verdict_line(f) -> str:
         return (f"**Ambiguous** on {', '.join(f.channels)}: {alts} explain it equally well ({stats}). The augmented "
                 f"model uses `{ev['used']}`, the one with the lowest held-out residual. Flights that would tell them "
                 f"apart: {how}.")
+    if f.verdict == "not a function of the state":
+        return (f"**Not a function of the state** on {', '.join(f.channels)}: {_fmt(1e3 * ev['rms'])} "
+                f"{_unit(f.channels[0])} RMS ({ev['size']:.2f} noise floors, z = {ev['z']:.1f}, p = {ev['p']:.2g}, "
+                f"{ev['blocks_improved']} / {ev['blocks']} blocks above the noise) that neither a library entry nor "
+                f"the generic terms of the state capture, in the band {ev['band']}: a disturbance of its own (of time, "
+                "a new realisation each flight) that no model of the state can predict.")
     where = (f" It is largest at {ev['regime']}, in the band {ev['band']}." if "regime" in ev else "")
     added = ("the augmented model adds those terms" if ev.get("added", True) else
              "its terms would make the rollouts on the training flights diverge, so the augmented model leaves them out")
@@ -97,8 +108,10 @@ def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
             lines.append(f"- `{f['name']}` named ({where})")
         elif f["verdict"] == "ambiguous":
             lines.append(f"- ambiguous ({where}): " + " or ".join(f"`{a}`" for a in f["alternatives"]))
-        else:
+        elif f["verdict"] == "unnamed":
             lines.append(f"- unnamed ({where}): " + " + ".join(f["params"]))
+        else:
+            lines.append(f"- not a function of the state ({where})")
     return "\n".join(lines)
 
 
@@ -110,6 +123,8 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
     rows = {"nominal (physics_full)": result.before, f"discovered ({result.name})": result.after}
     if result.sindy is not None and result.sindy["scores"] is not None:
         rows["plain SINDy (generic terms, no names)"] = result.sindy["scores"]
+    if result.limit is not None:
+        rows["state limit (true dynamics of the state)"] = result.limit
     if result.oracle is not None:
         rows["oracle"] = result.oracle
     mae_horizon_figure(rows, figs / "mae_horizon.png")
@@ -126,16 +141,27 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
     counts = {v: sum(f.verdict == v for f in result.findings) for v in VERDICTS}
     L += [f"The nominal model (rigid body with the torque equation, k_F and k_M identified on the training flights) "
           f"was compared with the measurements. {len(result.findings)} disagreements stand above the noise floor: "
-          f"{counts['named']} named, {counts['ambiguous']} ambiguous, {counts['unnamed']} unnamed. The augmented model "
+          f"{counts['named']} named, {counts['ambiguous']} ambiguous, {counts['unnamed']} unnamed, "
+          f"{counts['not a function of the state']} not a function of the state. The augmented model "
           f"`{result.name}` is scored below against the nominal model"
           + (" and the oracle (the simulator's true dynamics)." if result.oracle else "."), ""]
     L += ["| SimErr on the test flights | " + " | ".join(_QLABEL[k] for k in QUANTITIES) + " |",
           "|---|" + "---|" * len(QUANTITIES)]
     for label, sc in rows.items():
         L.append(f"| {label} | " + " | ".join(_fmt(sc.simerr[k]) for k in QUANTITIES) + " |")
+    if result.limit is not None:
+        closed_limit = gap_closed(result, "limit")
+        L.append("| share of the nominal–state-limit gap closed | "
+                 + " | ".join("–" if closed_limit[k] is None else f"{100 * closed_limit[k]:.0f} %" for k in QUANTITIES)
+                 + " |")
     if result.oracle is not None:
         L.append("| share of the nominal–oracle gap closed | "
                  + " | ".join("–" if closed[k] is None else f"{100 * closed[k]:.0f} %" for k in QUANTITIES) + " |")
+    if result.limit is not None or result.oracle is not None:
+        L += ["", "The state limit is the simulator's true dynamics without the effects that are not functions of the "
+              "state (the turbulence and the rotors' thrust fluctuation, new in every flight): the best any model of "
+              "the state can do. The oracle also replays each test flight's realisation of those, which no model "
+              "can know; the part of the gap between the two is unknowable."]
     L += ["", "![MAE against horizon: nominal, discovered and oracle](figures/mae_horizon.png)", "",
           "*MAE against the prediction horizon on the test flights (log scale).*", ""]
 
@@ -156,7 +182,7 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
                     lo, hi = f.evidence["ci"][k]
                     L.append(f"| {k} | {v:.4g} | {lo:.4g} … {hi:.4g} |")
             L.append("")
-        label = f.entry or f"unnamed ({', '.join(f.channels)})"
+        label = f.entry or f"{f.verdict} ({', '.join(f.channels)})"
         if label in fig_of:
             L += [f"![{label}: residual against its fitted contribution]({fig_of[label]})", "",
                   f"*{label}: its fitted contribution against the residual of {scatter[label]['channel']}, before "

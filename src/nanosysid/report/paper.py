@@ -16,7 +16,8 @@ from typing import Any, Mapping, Sequence
 from nanosysid.benchmark import Scores
 from nanosysid.metrics import QUANTITIES
 
-__all__ = ["PAPER_RESULTS", "PAPER_MODELS", "Comparison", "compare_results", "results_markdown"]
+__all__ = ["PAPER_RESULTS", "PAPER_MODELS", "PAPER_IDENTIFIED", "Comparison", "compare_results",
+           "compare_identification", "results_markdown", "identification_markdown"]
 
 # The paper's table of numerical performance (Melon test flights): MAE at h = 1, 10, 50 and the
 # SimErr (sum over h = 1..50), per quantity, for its five models (our names).
@@ -33,6 +34,8 @@ PAPER_RESULTS: dict[str, dict[str, tuple[float, float, float, float]]] = {
              "R": (0.0066, 0.0372, 0.2325, 5.6525), "w": (0.1021, 0.4292, 1.2407, 35.8353)},
 }
 PAPER_MODELS = tuple(PAPER_RESULTS)
+# The paper's identified rotor coefficients (least squares on its closed-loop training flights).
+PAPER_IDENTIFIED = {"k_f": 3.72e-8, "k_m": 7.73e-11}
 _HORIZONS = (1, 10, 50)
 _LABEL = {"p": "p", "v": "v", "R": "R", "w": "ω"}
 
@@ -52,6 +55,7 @@ class Comparison:
     ratios: dict[tuple[str, str], tuple[float, float]] = field(default_factory=dict)
     best: dict[str, tuple[str, str, float]] = field(default_factory=dict)
     checks: dict[str, bool] = field(default_factory=dict)
+    identification: dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -59,6 +63,7 @@ class Comparison:
             "ratios": [{"model": m, "quantity": k, "ours": a, "paper": b} for (m, k), (a, b) in self.ratios.items()],
             "best": {k: {"ours": a, "paper": b, "paper_margin": c} for k, (a, b, c) in self.best.items()},
             "checks": self.checks,
+            "identification": self.identification,
         }
 
 
@@ -107,6 +112,71 @@ def compare_results(scores: Mapping[str, Scores], *, factor: float = 1.5, ratio_
         c.checks[f"best model of each SimErr column as the paper's where its margin is over {margin:.0%}"] = all(
             ours == paper for ours, paper, pm in c.best.values() if pm > margin)
     return c
+
+
+def _within(fit: Mapping[str, Any], truth: float) -> bool:
+    ci = fit.get("ci95")
+    return ci is not None and ci[0] <= truth <= ci[1]
+
+
+def compare_identification(c: Comparison, params: Mapping[str, Any], *, k_f: float, k_m: float,
+                           k_f_thrust: float | None = None, paper_tolerance: float = 0.25,
+                           k_f_tolerance: float = 0.01, k_m_tolerance: float = 0.05) -> None:
+    """The identified k_F and k_M (``params.json``) against nature's and the paper's, into ``c``.
+
+    Args:
+        params: The identify stage's result.
+        k_f, k_m: Nature's coefficients.
+        k_f_thrust: The one k_F nature's own thrust gives over the training flights (noise-free
+            thrust on noise-free sum Omega^2): with rotors a few per cent apart, the collective
+            coefficient of a one-k_F model is this, not the rotors' mean.
+        paper_tolerance: The paper's method on our training flights must give the paper's k_M
+            within this relative distance: the world reproduces the paper's identification,
+            bias included.
+    """
+    paper_fit = params.get("yaw_fit_paper_method", params["yaw_fit"])
+    ident = {"k_f": {"nature": k_f, "nature_thrust": k_f_thrust, "identified": params["k_f"],
+                     "fit": params["thrust_fit"]},
+             "k_m": {"nature": k_m, "identified": params["k_m"], "fit": params["yaw_fit"],
+                     "paper_method": paper_fit["coef"], "paper_method_fit": paper_fit,
+                     "paper": PAPER_IDENTIFIED["k_m"]}}
+    c.identification = ident
+    c.checks[f"the paper's method on our training flights gives the paper's k_M within {paper_tolerance:.0%}"] = (
+        abs(paper_fit["coef"] / PAPER_IDENTIFIED["k_m"] - 1) <= paper_tolerance)
+    target = k_f if k_f_thrust is None else k_f_thrust
+    c.checks[f"k_F within {k_f_tolerance:.0%} of nature's, its interval covering nature's thrust per sum Omega^2"] = (
+        abs(params["k_f"] / k_f - 1) <= k_f_tolerance and _within(params["thrust_fit"], target))
+    c.checks[f"k_M within {k_m_tolerance:.0%} of nature's, its interval covering it"] = (
+        abs(params["k_m"] / k_m - 1) <= k_m_tolerance and _within(params["yaw_fit"], k_m))
+
+
+def identification_markdown(c: Comparison) -> str:
+    """The identification against nature's and the paper's numbers, as a Markdown section."""
+    if not c.identification:
+        return ""
+    f, m = c.identification["k_f"], c.identification["k_m"]
+
+    def ci(fit):
+        return "–" if fit.get("ci95") is None else f"{fit['ci95'][0]:.4g} to {fit['ci95'][1]:.4g}"
+
+    L = ["## Identification against nature", "",
+         "The rotor coefficients the identify stage gives (`models/physics/params.json`), their 95 % intervals (from "
+         "the flights, or the calibration flights' blocks, as independent repeats), and nature's. The paper's method "
+         "(least squares on the closed-loop training flights) is biased towards zero for k_M: the yaw loop cancels the "
+         "yaw disturbances through the very rotor-speed difference the fit regresses on. This world reproduces the "
+         "paper's k_M with the paper's method while its truth is the thrust stands' (5.69 mm of yaw torque per "
+         "newton of thrust).", "",
+         "| coefficient | estimator | estimate | 95 % interval | nature | error |", "|---|---|---|---|---|---|",
+         f"| k_F [N s²/rad²] | {f['fit']['estimator']} | {f['identified']:.4g} | {ci(f['fit'])} | {f['nature']:.4g}"
+         + ("" if f["nature_thrust"] is None else f" (its thrust per ΣΩ² on these flights: {f['nature_thrust']:.4g})")
+         + f" | {f['identified'] / f['nature'] - 1:+.2%} |",
+         f"| k_M [N m s²/rad²] | {m['fit']['estimator']} | {m['identified']:.4g} | {ci(m['fit'])} | {m['nature']:.4g} | "
+         f"{m['identified'] / m['nature'] - 1:+.1%} |",
+         f"| k_M, the paper's method | {m['paper_method_fit']['estimator']} | {m['paper_method']:.4g} | "
+         f"{ci(m['paper_method_fit'])} | {m['nature']:.4g} | {m['paper_method'] / m['nature'] - 1:+.1%} |",
+         f"| k_M, the paper's table | least squares on the real closed-loop flights | {m['paper']:.4g} | – | – | "
+         f"ours by its method {m['paper_method'] / m['paper'] - 1:+.1%} |", ""]
+    return "\n".join(L)
 
 
 def _mark(ok: bool) -> str:

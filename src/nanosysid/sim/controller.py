@@ -105,12 +105,13 @@ class Mellinger:
         self.gravity = torch.tensor([0.0, 0.0, vehicle.gravity], dtype=torch.float64)
 
     def __call__(self, x: Tensor, p_ref: Tensor, v_ref: Tensor, a_ref: Tensor,
-                 state: ControllerState) -> tuple[Tensor, ControllerState]:
+                 state: ControllerState, yaw_ref: Tensor | None = None) -> tuple[Tensor, ControllerState]:
         """One control period.
 
         Args:
             x: Estimated state ``(B, 13)``.
-            p_ref, v_ref, a_ref: Setpoints ``(B, 3)`` in m, m/s, m/s^2; yaw reference 0.
+            p_ref, v_ref, a_ref: Setpoints ``(B, 3)`` in m, m/s, m/s^2.
+            yaw_ref: Yaw setpoint ``(B,)`` in rad; None is zero.
 
         Returns:
             Rotor speed commands ``(B, 4)`` in rad/s, and the updated controller state.
@@ -122,10 +123,13 @@ class Mellinger:
         F = self.v.mass * (a_ref + self.gravity) + self.kp * e_p + self.kd * e_v + self.ki * i_pos  # (B, 3)
         R = so3.quat_to_rotmat(q)  # (B, 3, 3), body to world
         thrust = (F * R[..., 2]).sum(-1)  # (B,), projection on the body z axis
-        # desired attitude: z along F, heading from the zero yaw reference
+        # desired attitude: z along F, heading from the yaw reference
         z_d = F / F.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         x_c = torch.zeros_like(z_d)
-        x_c[:, 0] = 1.0
+        if yaw_ref is None:
+            x_c[:, 0] = 1.0
+        else:
+            x_c[:, 0], x_c[:, 1] = torch.cos(yaw_ref), torch.sin(yaw_ref)
         y_d = torch.linalg.cross(z_d, x_c, dim=-1)
         y_d = y_d / y_d.norm(dim=-1, keepdim=True).clamp_min(1e-9)
         x_d = torch.linalg.cross(y_d, z_d, dim=-1)

@@ -28,11 +28,11 @@ from nanosysid.sim.trajectories import Reference, make_reference
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["SimConfig", "NoiseConfig", "FlightSpec", "RawRecord", "simulate", "simulate_raw", "flights_from_record",
-           "flight_key", "TRUTH_COLUMNS"]
+           "flight_key", "TRUTH_COLUMNS", "collective_thrust_coefficient"]
 
 log = logging.getLogger(__name__)
 
-TRAJECTORY_INDEX = {"square": 0, "random": 1, "chirp": 2, "melon": 3}
+TRAJECTORY_INDEX = {"square": 0, "random": 1, "chirp": 2, "melon": 3, "yawsweep": 4}
 # truth signals stored beside the published columns
 WRENCH_COLUMNS = ["fx_body", "fy_body", "fz_body", "tx_body", "ty_body", "tz_body"]
 TRUTH_COLUMNS = [f"true_{c}" for c in (*INPUT_COLUMNS, *OUTPUT_COLUMNS, *ACCEL_COLUMNS, *WRENCH_COLUMNS)]
@@ -142,6 +142,7 @@ class RawRecord:
         omega: Rotor speeds ``(B, N, 4)`` (rad/s) and ``omega_dot`` their rates (rad/s^2).
         wrench: Body-frame force (N) and torque (N m) ``(B, N, 6)``, rotors and effects together.
         p_ref: Position setpoints ``(B, N, 3)`` (m), held between control instants.
+        yaw_ref: Yaw setpoints ``(B, N)`` (rad), held the same way.
         durations: Trajectory durations (s).
         rngs: Each flight's generator of measurement noise.
     """
@@ -157,6 +158,7 @@ class RawRecord:
     omega_dot: np.ndarray
     wrench: np.ndarray
     p_ref: np.ndarray
+    yaw_ref: np.ndarray
     durations: list[float]
     rngs: list[np.random.Generator]
 
@@ -199,6 +201,8 @@ def simulate_raw(
     pva = [r.pva(t_ctrl) for r in refs]
     p_ref, v_ref, a_ref = (torch.from_numpy(np.stack([x[i] for x in pva])) for i in range(3))
     v_ref, a_ref = v_ref * cfg.feedforward, a_ref * cfg.feedforward
+    yaw_ref = torch.from_numpy(np.stack([r.yaw(t_ctrl) for r in refs]))  # (B, Nc)
+    yaws = yaw_ref.any().item()
 
     x = torch.zeros(B, 17, dtype=torch.float64)
     offsets = np.stack([rng.normal(scale=cfg.initial_offset, size=3) for rng in rngs])
@@ -225,7 +229,8 @@ def simulate_raw(
         for k in range(n_steps):
             if k % ctrl_every == 0:
                 j = k // ctrl_every
-                cmd, cstate = ctrl(x[:, :13], p_ref[:, j], v_ref[:, j], a_ref[:, j], cstate)
+                cmd, cstate = ctrl(x[:, :13], p_ref[:, j], v_ref[:, j], a_ref[:, j], cstate,
+                                   yaw_ref[:, j] if yaws else None)
             states.append(x)
             cmds.append(cmd)
             x = dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, normalise=_normalise_in_place,
@@ -260,6 +265,7 @@ def simulate_raw(
         omega_dot=om_dot.numpy(),
         wrench=torch.cat((f_b, tau), -1).numpy(),
         p_ref=p_hold.numpy(),
+        yaw_ref=yaw_ref.repeat_interleave(ctrl_every, dim=1)[:, :n_steps].numpy(),
         durations=[r.duration for r in refs],
         rngs=rngs,
     )
@@ -311,6 +317,8 @@ def flights_from_record(raw: RawRecord, *, vehicle: Vehicle, cfg: SimConfig, noi
         extra = {c: acc[:, j] for j, c in enumerate(ACCEL_COLUMNS)}
         truth = np.concatenate((omega_true, y_true, acc_true, raw.wrench[i, idx]), axis=1)
         extra.update({c: truth[:, j].copy() for j, c in enumerate(TRUTH_COLUMNS)})
+        if raw.yaw_ref[i].any():
+            extra["yaw_ref"] = raw.yaw_ref[i, idx].copy()
         out.append(Flight(name=name, t=np.round(raw.t[idx], 10), u=u, y=y, extra=extra))
     return out
 
@@ -348,3 +356,16 @@ def _add_noise(y, u, acc, n: NoiseConfig, rng: np.random.Generator, dt: float):
     u = u + rng.normal(scale=n.rotor, size=u.shape)
     acc = acc + rng.normal(scale=n.accel, size=acc.shape)
     return y, u, acc
+
+
+def collective_thrust_coefficient(flights: Sequence[Flight]) -> float:
+    """The one k_F of nature's noise-free body thrust on its noise-free sum of squared rotor
+    speeds over ``flights`` (simulated, with their ``true_*`` columns). With rotors a few per
+    cent apart this is what a one-k_F thrust model can at best identify, not the rotors' mean."""
+    num = den = 0.0
+    for f in flights:
+        p = sum(f.extra[f"true_m{i}_rads"] ** 2 for i in range(1, 5))
+        num += float(p @ f.extra["true_fz_body"])
+        den += float(p @ p)
+    return num / den
+

@@ -3,7 +3,9 @@
 Each trajectory is a :class:`Reference`: position, velocity and acceleration setpoints as
 vectorised functions of time (s), over ``[0, duration]``; before 0 and after the end the
 setpoint holds still at the first or last point. Positions are in the world frame (m, z up);
-the yaw reference is zero throughout.
+the yaw reference is zero throughout, except in the yaw calibration flight (:func:`yaw_sweep`),
+which hovers while its yaw setpoint sweeps a sine: an identification flight for the
+rotors' torque coefficient k_M, not one of the benchmark's trajectories.
 """
 
 from __future__ import annotations
@@ -14,18 +16,24 @@ from typing import Callable
 import numpy as np
 from scipy.interpolate import CubicSpline
 
-__all__ = ["Reference", "square", "random_points", "melon", "chirp", "make_reference", "TRAJECTORIES"]
+__all__ = ["Reference", "square", "random_points", "melon", "chirp", "yaw_sweep", "make_reference", "TRAJECTORIES"]
 
 PVA = tuple[np.ndarray, np.ndarray, np.ndarray]
 
 
 @dataclass(frozen=True)
 class Reference:
-    """A trajectory: ``pva(t) -> (p, v, a)``, each ``(len(t), 3)``."""
+    """A trajectory: ``pva(t) -> (p, v, a)``, each ``(len(t), 3)``, and a yaw setpoint
+    ``yaw(t)`` (rad, ``(len(t),)``; zero unless ``yaw_inside`` is given)."""
 
     name: str
     duration: float
     pva_inside: Callable[[np.ndarray], PVA]
+    yaw_inside: Callable[[np.ndarray], np.ndarray] | None = None
+
+    def yaw(self, t: np.ndarray) -> np.ndarray:
+        t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
+        return np.zeros(len(t)) if self.yaw_inside is None else self.yaw_inside(t)
 
     def pva(self, t: np.ndarray) -> PVA:
         t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
@@ -177,7 +185,31 @@ def chirp(*, amplitude: float = 0.5, f_start: float = 0.1, f_end: float = 0.5, d
     return Reference("chirp", duration, pva)
 
 
-TRAJECTORIES = {"square": square, "random": random_points, "melon": melon, "chirp": chirp}
+def yaw_sweep(*, amplitude: float = 0.2, f_low: float = 0.05, f_high: float = 1.0, duration: float = 60.0,
+              fade: float = 3.0, center: tuple[float, float, float] = (0.0, 0.0, 1.5)) -> Reference:
+    """Hover at ``center`` while the yaw setpoint sweeps a sine of ``amplitude`` rad from
+    ``f_low`` to ``f_high`` Hz, its frequency rising linearly over ``duration`` s, faded in and
+    out over ``fade`` s (a half cosine). The excitation the yaw loop's own disturbance
+    rejection cannot supply: an exogenous signal, the instrument of the k_M fit
+    (:mod:`nanosysid.identify`). A linear sweep spends most of its time at the higher
+    frequencies, where the torque it asks for (growing with the square of the frequency) stands
+    out of the slow yaw disturbances."""
+    k = (f_high - f_low) / duration
+
+    def yaw(t):
+        ramp = np.clip(np.minimum(t, duration - t) / fade, 0.0, 1.0)
+        return amplitude * np.sin(2 * np.pi * (f_low * t + 0.5 * k * t**2)) * 0.5 * (1 - np.cos(np.pi * ramp))
+
+    c = np.asarray(center, dtype=np.float64)
+
+    def pva(t):
+        n = len(t)
+        return np.tile(c, (n, 1)), np.zeros((n, 3)), np.zeros((n, 3))
+
+    return Reference("yawsweep", duration, pva, yaw)
+
+
+TRAJECTORIES = {"square": square, "random": random_points, "melon": melon, "chirp": chirp, "yawsweep": yaw_sweep}
 
 
 def make_reference(name: str, **options) -> Reference:
