@@ -13,6 +13,7 @@ from nanosysid import config
 from nanosysid.dataio import read_flight_csv
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
+from nanosysid.discover import VERDICTS as discover_verdicts
 from nanosysid.effects import LIBRARY as discover_library
 from stages import (compare, discover, evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report,
                     simulate, split, sync, train, visualize)
@@ -299,11 +300,13 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     model = json.loads((tiny / "discovered" / "model.json").read_text())
     result = json.loads((tiny / "discovery" / "result.json").read_text())
     assert model["format"] == "nanosysid-discovered-1"
-    used = [f["name"] or f["alternatives"][0] for f in result["findings"] if f["verdict"] != "unnamed"]
+    used = [f["name"] or f["alternatives"][0] for f in result["findings"] if f["verdict"] in ("named", "ambiguous")]
     wrench = [n for n in used if discover_library[n].kind == "wrench"]
     assert [n for n in model["effects"] if not n.startswith("term:")] == wrench
-    assert all(f["verdict"] in ("named", "ambiguous", "unnamed") for f in result["findings"])
-    assert set(result["simerr"]) == {"nominal", "discovered", "oracle", "sindy"}
+    assert all(f["verdict"] in discover_verdicts for f in result["findings"])
+    # beside the oracle, the limit of a model of the state (the oracle without the effects of time)
+    assert set(result["simerr"]) == {"nominal", "discovered", "oracle", "state_limit", "sindy"}
+    assert set(result["gap_closed_state_limit"]) == set("pvRw")
     scores = json.loads((tiny / "eval" / "discovered" / "scores.json").read_text())
     assert scores["simerr"] == pytest.approx(result["simerr"]["discovered"])
     # the nominal model of discovery is the full physics model (rotor torques integrated) that

@@ -11,13 +11,19 @@ from nanosysid.report import readme
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_readme_shows_the_results_the_lock_file_records():
+def stamped(begin, end, stages):
+    """A generated section of the README, the sources its stamp names, and the outputs of
+    ``stages`` as the committed ``dvc.lock`` records them."""
     text = (ROOT / "README.md").read_text()
-    assert text.count(readme.BEGIN) == 1 and text.count(readme.END) == 1
-    part = text[text.index(readme.BEGIN):text.index(readme.END)]
-    sources = dict(re.findall(r"(\S+) md5 ([0-9a-f]{32})", part))
+    assert text.count(begin) == 1 and text.count(end) == 1
+    part = text[text.index(begin):text.index(end)]
     lock = yaml.safe_load((ROOT / "dvc.lock").read_text())
-    outs = {o["path"]: o["md5"] for o in lock["stages"]["report"]["outs"]}
+    outs = {o["path"]: o["md5"] for st in stages for o in lock["stages"][st]["outs"]}
+    return part, dict(re.findall(r"(\S+) md5 ([0-9a-f]{32})", part)), outs
+
+
+def test_readme_shows_the_results_the_lock_file_records():
+    part, sources, outs = stamped(readme.BEGIN, readme.END, ["report"])
     assert sources == {p: outs[p] for p in ("reports/benchmark.md", "reports/figures/mae_horizon.png")}
     copy = re.search(r"\]\((docs/figures/[^)]+\.png)\)", part).group(1)
     assert hashlib.md5((ROOT / copy).read_bytes()).hexdigest() == outs["reports/figures/mae_horizon.png"]
@@ -25,12 +31,7 @@ def test_readme_shows_the_results_the_lock_file_records():
 
 
 def test_readme_physics_section_is_the_compare_and_quality_reports_the_lock_file_records():
-    text = (ROOT / "README.md").read_text()
-    assert text.count(readme.PHYSICS_BEGIN) == 1 and text.count(readme.PHYSICS_END) == 1
-    part = text[text.index(readme.PHYSICS_BEGIN):text.index(readme.PHYSICS_END)]
-    sources = dict(re.findall(r"(\S+) md5 ([0-9a-f]{32})", part))
-    lock = yaml.safe_load((ROOT / "dvc.lock").read_text())
-    outs = {o["path"]: o["md5"] for st in ("compare", "quality") for o in lock["stages"][st]["outs"]}
+    part, sources, outs = stamped(readme.PHYSICS_BEGIN, readme.PHYSICS_END, ["compare", "quality"])
     assert sources == {p: outs[p] for p in ("reports/sim/stats.md", "reports/data/quality.md")}
     assert "| k_M, the paper's method |" in part and "| phys_res / physics, ours |" in part
     assert "| melon_20250601_run1 |" in part

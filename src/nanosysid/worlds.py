@@ -28,7 +28,8 @@ import torch
 from nanosysid import so3
 
 __all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "World", "draw", "simulate", "judge", "check", "summarize",
-           "identification", "summarize_identification", "short_flights_config", "STRENGTH_BINS"]
+           "identification", "summarize_identification", "library_truth", "coefficient_coverage",
+           "short_flights_config", "STRENGTH_BINS"]
 
 # world effect -> the library entries that describe it (any of its forms); a "named" verdict
 # is correct when the world has an effect it describes
@@ -220,7 +221,48 @@ def judge(world: World, flights: Sequence, without: dict | None = None, *, horiz
         "sindy_terms": len(r.sindy["terms"]),
         "gap_share": float(sum((r.before.simerr[q] - reachable[q]) / r.before.simerr[q] for q in r.before.simerr) / 4),
         "identify": ident,
+        "coverage": coefficient_coverage(world, r.findings),
     }
+
+
+def library_truth(effects: dict[str, float]) -> dict[str, dict[str, float]]:
+    """The world's truth in the parametrisation of the library entries that describe it one to
+    one (the judge's translation, written from the world's constants): library entry ->
+    coefficient name -> value. The drags' entries have other forms than the world's rotor and
+    airframe drag and are left out."""
+    from nanosysid.effects import LIBRARY
+    from nanosysid.sim import world as nature
+    from nanosysid.vehicle import Vehicle
+
+    J = Vehicle().inertia
+    values = {
+        "com_offset": ("cg_offset", lambda s: [s * nature.COM_OFFSET[0], s * nature.COM_OFFSET[1]]),
+        "telemetry_delay": ("input_delay", lambda s: [s * nature.TELEMETRY_DELAY]),
+        "rotor_inertia": ("rotor_gyro", lambda s: [s * nature.ROTOR_INERTIA]),
+        "motor_asymmetry": ("rotor_spread", lambda s: [s * d for d in nature.MOTOR_ASYMMETRY]),
+        "inertia_offset": ("inertia", lambda s: [j * s * d for j, d in zip(J, nature.INERTIA_OFFSET)]),
+    }
+    out = {}
+    for effect, strength in effects.items():
+        if effect in values:
+            name, fn = values[effect]
+            out[name] = dict(zip(LIBRARY[name].params, fn(float(strength))))
+    return out
+
+
+def coefficient_coverage(world: World, findings: Sequence) -> list[dict[str, Any]]:
+    """For every named finding whose entry describes one of the world's effects one to one
+    (:func:`library_truth`), each coefficient's truth against its 95 % interval."""
+    truth = library_truth(world.effects)
+    out = []
+    for f in findings:
+        if f.verdict != "named" or f.name not in truth:
+            continue
+        for k, v in truth[f.name].items():
+            lo, hi = f.evidence["ci"][k]
+            out.append({"entry": f.name, "param": k, "truth": v, "value": f.params[k], "low": lo, "high": hi,
+                        "covered": bool(lo <= v <= hi)})
+    return out
 
 
 def identification(world: World, flights: Sequence) -> dict[str, Any]:
@@ -341,6 +383,9 @@ def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict
         "beats_sindy": None if not both else sum(r["gap_closed"] > r["sindy_gap_closed"] for r in both) / len(both),
         "sindy_terms_mean": float(np.mean([r["sindy_terms"] for r in rows])) if rows else None,
         "identify": summarize_identification([r["identify"] for r in [*rows, *failed] if "identify" in r]),
+        "coefficients_checked": sum(len(r.get("coverage", [])) for r in rows),
+        "coefficients_covered": (None if not any(r.get("coverage") for r in rows) else
+                                 float(np.mean([c["covered"] for r in rows for c in r.get("coverage", [])]))),
     }
 
 

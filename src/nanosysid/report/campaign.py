@@ -39,7 +39,9 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
           f"{_pct(summary['half_gap_closed'])} (median {_pct(summary['gap_closed_median'])})",
           f"- plain SINDy: median gap closed {_pct(summary['sindy_gap_closed_median'])}, "
           f"{summary['sindy_terms_mean']:.1f} terms on average; discovery closes more of the gap in "
-          f"{_pct(summary['beats_sindy'])} of the worlds", ""]
+          f"{_pct(summary['beats_sindy'])} of the worlds",
+          f"- named coefficients whose entry describes a world effect one to one: {summary['coefficients_checked']}, "
+          f"their 95 % interval covering the world's truth in {_pct(summary['coefficients_covered'])}", ""]
     idn = summary.get("identify") or {}
     if idn:
         def q(d, scale, unit):
@@ -79,6 +81,7 @@ def worlds_table(rows: Sequence[dict[str, Any]], effects: Sequence[str]) -> pd.D
         for k in ("named", "ambiguous", "unnamed", "false_named"):
             row[k] = json.dumps(r.get(k, []))
         row["recalled"] = json.dumps(r.get("recalled", {}), sort_keys=True)
+        row["coverage"] = json.dumps(r.get("coverage", []), sort_keys=True)
         row.update({f"impact_{e}": float(r.get("impact", {}).get(e, float("nan"))) for e in effects})
         for k in ("gap_closed", "sindy_gap_closed", "gap_share"):
             v = r.get(k)
