@@ -180,12 +180,13 @@ def test_motor_asymmetry_keeps_collective_thrust_and_tilts():
     -2.0, +2.5, -3.5) %, at (x, y) = L (+1, -1), (-1, -1), (-1, +1), (+1, +1), L = 35.35 mm:
     tau_x = sum y_i F_i = L 0.1103625 (-d1 - d2 + d3 + d4) = -7.80262875e-5 N m,
     tau_y = -sum x_i F_i = -L 0.1103625 (d1 - d2 - d3 + d4) = +3.901314375e-5 N m;
-    each rotor's drag torque k_M (1 + d_i) Omega^2 = 2.29328e-4 (1 + d_i) N m turns the body against
-    its spin (M1, M3 counter-clockwise): tau_z = -(d1 - d2 + d3 - d4) 2.29328e-4 = -2.52261381e-5 N m."""
+    each rotor's drag torque k_M (1 + d_i) Omega^2 = (2.1177e-10 / 3.72e-8) 0.1103625 (1 + d_i) =
+    6.2826523e-4 (1 + d_i) N m turns the body against its spin (M1, M3 counter-clockwise):
+    tau_z = -(d1 - d2 + d3 - d4) 6.2826523e-4 = -6.9109176e-5 N m."""
     assert fx.MOTOR_ASYMMETRY == (0.030, -0.020, 0.025, -0.035)
     f, t = wrench("motor_asymmetry")
     assert abs(f[0, 2]) < 1e-12  # zero-mean spread: hover thrust unchanged
-    expected = torch.tensor([-7.80262875e-5, 3.901314375e-5, -2.5226138104838704e-05], dtype=torch.float64)
+    expected = torch.tensor([-7.80262875e-5, 3.901314375e-5, -6.9109176e-05], dtype=torch.float64)
     assert torch.allclose(t[0], expected, rtol=1e-6, atol=0)
 
 
