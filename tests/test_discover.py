@@ -153,12 +153,21 @@ def test_noise_floor_is_the_clean_residual():
     assert np.all(np.abs(rms / r.noise - 1) < 0.15), rms / r.noise
 
 
-@pytest.mark.parametrize("world,entry", [("delay", "input_delay"), ("cg", "cg_offset"), ("cg_turbulence", "cg_offset")])
-def test_a_hidden_effect_is_named_with_its_truth_inside_its_interval(world, entry):
+@pytest.mark.parametrize("world,entry,rivals", [
+    ("delay", "input_delay", ()), ("cg", "cg_offset", ()),
+    # a thrust torque off the centre is the roll and pitch modes of a rotor spread while the rotors
+    # spin alike: only yaw manoeuvres (two pairs at different speeds) separate them, and with the
+    # turbulence's torque the controller fights on top, these flights do not; a larger inertia
+    # or arm, which would "explain" much of the turbulence, stays ruled out by its bounds
+    ("cg_turbulence", "cg_offset", ("rotor_spread",))])
+def test_a_hidden_effect_is_named_with_its_truth_inside_its_interval(world, entry, rivals):
     r = discovered(world)
-    named = [f for f in r.findings if f.name == entry]
+    named = [f for f in r.findings if entry in ((f.name,) if f.name else f.alternatives[:1])]
     assert named, [(f.verdict, f.entry, f.alternatives) for f in r.findings]
     f = named[0]
+    # ambiguous only between the effect and the rivals the flights cannot tell from it (the one
+    # the augmented model uses, first, is the effect)
+    assert f.verdict == "named" or set(f.alternatives[1:]) <= set(rivals), (f.verdict, f.alternatives)
     # named: it beat its eligible rivals held out, so it is the best of its round on most folds
     # (an implausible candidate that fits better is no rival)
     assert f.evidence["stability"] >= 0.7, f.evidence["stability"]
@@ -261,7 +270,10 @@ def test_model_round_trips_through_its_file_and_reports(tmp_path):
     write_report(r, tmp_path / "report")
     text = (tmp_path / "report" / "report.md").read_text()
     assert "## Verdicts" in text and "noise floor" in text
-    for i in range(1, len(r.findings) + 1):
+    # a figure for each finding with a fitted contribution (one that is no function of the state has none)
+    fitted = [f for f in r.findings if f.verdict != discover.STATELESS]
+    assert fitted
+    for i in range(1, len(fitted) + 1):
         assert (tmp_path / "report" / "figures" / f"finding_{i}.png").read_bytes()[:4] == b"\x89PNG"
     assert math.isfinite(a.simerr["w"])
 
