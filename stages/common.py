@@ -10,6 +10,7 @@ with one message and exit code 2.
 from __future__ import annotations
 
 import argparse
+import errno
 import logging
 import sys
 from pathlib import Path
@@ -20,6 +21,7 @@ from omegaconf import DictConfig, OmegaConf
 from nanosysid.config import load_params
 from nanosysid.dataio import atomic_file, Flight, json_text
 from nanosysid.errors import ConfigError, UserError
+from nanosysid.guard import stage_run
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["run_stage", "plain", "vehicle_of", "model_options", "pick_flight", "write_json"]
@@ -42,17 +44,44 @@ def run_stage(
     parser.add_argument("--params", default=None, help="params file (default: params.yaml)")
     args = parser.parse_intermixed_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    # the stage's name in dvc.yaml: its module's (under `python -m` the module is __main__)
+    spec = getattr(sys.modules.get(main.__module__), "__spec__", None)
+    module = spec.name if spec is not None else main.__module__
+    stage = module.rpartition(".")[2] + (f"@{getattr(args, name_arg)}" if name_arg else "")
     try:
         kw = {"path": args.params} if args.params else {}
         cfg: DictConfig = load_params(args.overrides, **kw)
-        if name_arg:
-            main(cfg, getattr(args, name_arg))
-        else:
-            main(cfg)
+        with stage_run(stage, cfg):
+            if name_arg:
+                main(cfg, getattr(args, name_arg))
+            else:
+                main(cfg)
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except OSError as e:
+        print(f"error: {os_fault(e)}", file=sys.stderr)
+        return 2
     return 0
+
+
+_HINTS = {
+    errno.EACCES: "no permission: choose a path you may write, or change its permissions",
+    errno.EPERM: "not permitted: choose a path you may write",
+    errno.EROFS: "the file system is read-only: choose an output on a writable disk",
+    errno.ENOSPC: "the disk is full: free space or choose an output on another disk",
+    errno.EDQUOT: "the disk quota is exhausted: free space or choose another disk",
+    errno.ENOTDIR: "a part of the path is a file, not a folder: choose another path",
+    errno.EISDIR: "it is a folder where a file is wanted: choose another path",
+    errno.ENOENT: "no such file or folder: check the path (quote a path with spaces in an override: key='a b')",
+    errno.ENAMETOOLONG: "the name is too long: choose a shorter path",
+}
+
+
+def os_fault(e: OSError) -> str:
+    """One line for an operating-system fault: the path, what happened, what to do."""
+    where = e.filename if e.filename is not None else "(no path)"
+    return f"{where}: {e.strerror or e}; " + _HINTS.get(e.errno, "check the path and the disk")
 
 
 def plain(node: Any) -> Any:

@@ -27,6 +27,7 @@ def main(cfg: DictConfig) -> None:
     if calibration:
         yaw = identify.fit_yaw_moment_iv(calibration, vehicle, window=window, polyorder=order,
                                          lags=[float(x) for x in c.iv_lags], blocks=int(c.iv_blocks))
+    identify.check_plausible(thrust, yaw, vehicle)
     out = Path(c.out_dir)
     identify.save_params(out / "params.json", thrust, yaw, bench.train, yaw_paper=yaw_paper if calibration else None,
                          calibration=calibration)

@@ -157,8 +157,9 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     config.compose([], out=params, conf_dir=conf)
 
     split = tmp_path / "split"
-    for name, part in (("chirp_x_run1", "train"), ("chirp_x_run4", "train"), ("melon_x_run1", "test")):
-        write_flight_csv(synthetic.synthetic_flights([name], 300, seed=5)[0], split / part / f"{name}.csv")
+    made = synthetic.synthetic_flights(["chirp_x_run1", "chirp_x_run4", "melon_x_run1"], 300, seed=5)
+    for f, part in zip(made, ("train", "train", "test")):
+        write_flight_csv(f, split / part / f"{f.name}.csv")
     overrides = [f"paths.split={split}", f"paths.train_logs={tmp_path / 'logs'}", f"paths.eval={tmp_path / 'eval'}",
                  f"models.gru.checkpoint={tmp_path / 'gru.pt'}", "models.gru.train.epochs=1",
                  "models.gru.train.stride=20", "eval.horizon=20", "models.gru.train.horizon=20"]

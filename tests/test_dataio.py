@@ -121,14 +121,15 @@ def test_atomic_dir_keeps_old_contents_on_failure(tmp_path):
             (tmp / "partial.txt").write_text("new")
             raise RuntimeError("stage failed")
     assert sorted(os.listdir(out)) == [OWNER, "keep.txt"] and (out / "keep.txt").read_text() == "old"
-    assert os.listdir(tmp_path) == ["out"]  # no temporary left behind
+    # no temporary left behind; the record of who wrote it beside it
+    assert sorted(os.listdir(tmp_path)) == [".out.nanosysid", "out"]
 
 
 def test_a_folder_no_stage_wrote_is_never_replaced(tmp_path):
     mine = tmp_path / "mine"
     mine.mkdir()
     (mine / "notes.txt").write_text("the user's")
-    with pytest.raises(ConfigError, match=r"mine: holds files no stage of this pipeline wrote"):
+    with pytest.raises(ConfigError, match=r"mine: holds files no run of stage python wrote"):
         with atomic_dir(mine) as tmp:
             (tmp / "f").write_text("x")
     assert os.listdir(mine) == ["notes.txt"]
@@ -142,7 +143,7 @@ def test_an_output_overlapping_its_input_is_refused(tmp_path, out):
     bags = tmp_path / "bags"
     bags.mkdir()
     (bags / "flight.mcap").write_text("data")
-    with pytest.raises(ConfigError, match=r"the output folder would overlap the input"):
+    with pytest.raises(ConfigError, match=r"the output (is|lies inside|contains) the input"):
         with atomic_dir(tmp_path / out, inputs=[bags]) as tmp:
             (tmp / "f").write_text("x")
     assert os.listdir(bags) == ["flight.mcap"]
@@ -161,16 +162,19 @@ def test_written_files_and_folders_get_the_users_umask(tmp_path):
     assert (tmp_path / "d").stat().st_mode & 0o777 == 0o755
 
 
-def test_leftovers_of_a_killed_write_are_removed_by_the_next(tmp_path):
-    (tmp_path / ".out.abc123.tmp").mkdir()  # what a killed atomic_dir leaves
-    (tmp_path / ".out.abc123.tmp" / "half.csv").write_text("1,2\n")
-    (tmp_path / ".m.json.xyz.tmp").write_text("{")  # and a killed atomic_file
+def test_leftovers_of_a_killed_write_are_removed_by_the_next_and_only_ours(tmp_path):
+    (tmp_path / ".out.nanosysid-abc123.tmp").mkdir()  # what a killed atomic_dir leaves
+    (tmp_path / ".out.nanosysid-abc123.tmp" / "half.csv").write_text("1,2\n")
+    (tmp_path / ".m.json.nanosysid-xyz.tmp").write_text("{")  # and a killed atomic_file
     (tmp_path / ".notes.txt").write_text("not ours")
+    (tmp_path / ".out.backup.old").mkdir()  # the user's, named like a backup
+    (tmp_path / ".m.json.mine.tmp").write_text("the user's")
     with atomic_dir(tmp_path / "out") as tmp:
         (tmp / "f").write_text("y")
     with atomic_file(tmp_path / "m.json") as tmp:
         tmp.write_text("{}")
-    assert sorted(p.name for p in tmp_path.iterdir()) == [".notes.txt", "m.json", "out"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        ".m.json.mine.tmp", ".m.json.nanosysid", ".notes.txt", ".out.backup.old", ".out.nanosysid", "m.json", "out"]
     assert sorted(p.name for p in (tmp_path / "out").iterdir()) == [OWNER, "f"]
 
 

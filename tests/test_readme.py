@@ -1,6 +1,7 @@
 """The README's generated results section: regenerated from the report, current with dvc.lock."""
 
 import hashlib
+import json
 import re
 from pathlib import Path
 
@@ -126,3 +127,17 @@ def test_readme_run_times_are_the_bench_record(monkeypatch):
     assert part == readme.bench_section(Path("reports/bench.json"))
     rest = text.replace(part, "")
     assert not re.findall(r"about \d+(\.\d+)? ?(s|min|minutes|seconds)\b", rest)
+
+
+def test_readme_reliability_section_is_the_fault_matrix_record(monkeypatch):
+    # the record is rewritten by every full run of tests/faults (collected before this file)
+    from nanosysid.report.readme import FAULTS_BEGIN, FAULTS_END, faults_section
+
+    monkeypatch.chdir(ROOT)
+    text = (ROOT / "README.md").read_text()
+    part = text[text.index(FAULTS_BEGIN):text.index(FAULTS_END) + len(FAULTS_END)]
+    record = json.loads((ROOT / "tests" / "faults" / "record.json").read_text())
+    assert part == faults_section(Path("tests/faults/record.json")), \
+        "run `python -m nanosysid.report.readme --sections reliability`"
+    rows = [line.split("|")[2:4] for line in part.splitlines() if line.startswith("| ") and "class of fault" not in line]
+    assert sum(int(c) for c, _ in rows[:-1]) == record["cases"] == int(rows[-1][0])

@@ -25,10 +25,11 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from nanosysid import metrics
-from nanosysid.dataio import OUTPUT_COLUMNS, Flight, atomic_file, parse_flight_name, read_flight_csv
+from nanosysid.dataio import (OUTPUT_COLUMNS, Flight, atomic_file, check_distinct, flight_files, parse_flight_name,
+                              read_flight_csv)
 from nanosysid.errors import ConfigError, DataError, PredictionError
 
-__all__ = ["Benchmark", "Flight", "Scores", "evaluate", "load", "predictions", "score", "windows", "check_predictions",
+__all__ = ["Benchmark", "Flight", "Scores", "evaluate", "load", "predictions", "score", "windows", "check_flight", "check_predictions",
            "template_frame", "write_template", "QUAT_NORM_TOLERANCE"]
 
 Predictor = Callable[[Any, Any], Any]
@@ -110,18 +111,14 @@ def load(path: str | os.PathLike, *, horizon: int = 50) -> Benchmark:
         d = root / part
         if not d.is_dir():
             raise DataError(f"{d}: no such folder (a benchmark folder holds train/ and test/)")
-        files = sorted(d.rglob("*.csv"))
+        files = flight_files(d)
         for f in files:
-            try:
-                parse_flight_name(f.stem)
-            except ValueError as e:
-                raise DataError(f"{f}: {e}") from None
             if f.name in seen:
-                where = "both train/ and test/" if seen[f.name].parts[len(root.parts)] != part else "twice"
-                raise DataError(f"{f}: flight {f.stem} is in {where} (also {seen[f.name]}); a flight scored on must "
-                                "not be trained on")
+                raise DataError(f"{f}: flight {f.stem} is in both train/ and test/ (also {seen[f.name]}); a flight "
+                                "scored on must not be trained on")
             seen[f.name] = f
         parts[part] = [read_flight_csv(f, min_rows=horizon + 1) for f in files]
+    check_distinct(parts["train"] + parts["test"])
     if not parts["test"]:
         raise DataError(f"{root / 'test'}: no flight CSV files")
     return Benchmark(train=parts["train"], test=parts["test"], root=root)
@@ -137,6 +134,7 @@ def windows(flight: Flight, horizon: int) -> tuple[np.ndarray, np.ndarray, np.nd
     n = T - horizon
     if n < 1:
         raise DataError(f"flight {flight.name}: {T} samples, fewer than horizon + 1 = {horizon + 1}")
+    check_flight(flight)
     win = np.lib.stride_tricks.sliding_window_view
     u = win(flight.u, horizon, axis=0)[:n].transpose(0, 2, 1)  # (N, H, 4)
     y = win(flight.y[1:], horizon, axis=0)[:n].transpose(0, 2, 1)  # (N, H, 13)
@@ -161,6 +159,36 @@ def _read_only(a: np.ndarray) -> np.ndarray:
     a = np.array(a, dtype=np.float64)
     a.flags.writeable = False
     return a
+
+
+RATE_TOLERANCE = 0.01  # the share a flight's median sample period may differ from the protocol's
+
+
+def check_flight(flight: Flight) -> None:
+    """Refuse a flight that cannot be the truth of a score: non-finite inputs or outputs,
+    quaternions off unit norm (a zero quaternion would score every rotation as exact), samples
+    not at the protocol's rate (h steps would not be h x 10 ms). The message names the flight,
+    the column and the sample: bad data is not the predictor's fault."""
+    from nanosysid.dataio import INPUT_COLUMNS, SAMPLE_PERIOD
+
+    for arr, cols in ((flight.u, INPUT_COLUMNS), (flight.y, OUTPUT_COLUMNS)):
+        bad = ~np.isfinite(arr)
+        if bad.any():
+            i, c = np.argwhere(bad)[0]
+            raise DataError(f"flight {flight.name}: column {cols[c]!r} is {arr[i, c]} at sample {i} "
+                            f"(t = {flight.t[i]:.6g} s); the truth must be finite to be scored against")
+    norm = np.linalg.norm(flight.y[:, 6:10], axis=1)
+    off = np.abs(norm - 1.0) > QUAT_NORM_TOLERANCE
+    if off.any():
+        i = int(np.argmax(off))
+        raise DataError(f"flight {flight.name}: the quaternion (qx..qw) at sample {i} (t = {flight.t[i]:.6g} s) has "
+                        f"norm {norm[i]:.4g}; the truth needs unit quaternions (within {QUAT_NORM_TOLERANCE:g})")
+    if len(flight) > 1:
+        dt = float(np.median(np.diff(flight.t)))
+        if not abs(dt / SAMPLE_PERIOD - 1) <= RATE_TOLERANCE:
+            raise DataError(f"flight {flight.name}: column 't': samples {dt:.6g} s apart ({1 / dt:.4g} Hz); the "
+                            f"protocol's horizons are steps of {SAMPLE_PERIOD:g} s ({1 / SAMPLE_PERIOD:g} Hz): "
+                            "resample the flight first")
 
 
 def check_predictions(pred: np.ndarray, where: str) -> None:
@@ -255,7 +283,7 @@ def template_frame(predict: Predictor, flight: Flight, *, horizon: int = 50, bat
 def write_template(predict: Predictor, flight: Flight, path: str | os.PathLike, *, horizon: int = 50) -> None:
     """:func:`template_frame` as a CSV file (written atomically)."""
     frame = template_frame(predict, flight, horizon=horizon)
-    with atomic_file(path) as tmp:
+    with atomic_file(path, inputs=[flight.source] if flight.source else ()) as tmp:
         frame.to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
 
 
@@ -281,5 +309,14 @@ def score(y_true, y_pred) -> Scores:
     if y_true.ndim != 3 or y_true.shape != y_pred.shape or y_true.shape[-1] != 13 or not y_true.size:
         raise PredictionError(f"expected two (N, H, 13) arrays with N, H >= 1, got {y_true.shape} and {y_pred.shape}")
     check_predictions(y_pred, "score")
+    if not np.isfinite(y_true).all():
+        i, h, c = np.argwhere(~np.isfinite(y_true))[0]
+        raise DataError(f"score: the truth is {y_true[i, h, c]} at window {i}, step {h + 1}, output {c}; "
+                        "the truth must be finite")
+    tnorm = np.linalg.norm(y_true[..., 6:10], axis=-1)
+    if (np.abs(tnorm - 1.0) > QUAT_NORM_TOLERANCE).any():
+        i, h = np.argwhere(np.abs(tnorm - 1.0) > QUAT_NORM_TOLERANCE)[0]
+        raise DataError(f"score: the true quaternion at window {i}, step {h + 1} has norm {tnorm[i, h]:.4g}; "
+                        f"the truth needs unit quaternions (within {QUAT_NORM_TOLERANCE:g})")
     errs = metrics.errors(y_true, y_pred)
     return Scores(mae={k: e.mean(axis=0) for k, e in errs.items()}, n_windows=len(y_true))

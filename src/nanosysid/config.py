@@ -110,7 +110,10 @@ _COUNT = "a positive whole number"
 _NONNEG = "a number >= 0"
 _NONNEG_COUNT = "a whole number >= 0"
 _COUNT_OR_NULL = "a positive whole number, or null"
+_TWO_OR_MORE = "a whole number >= 2"
 _RULES: list[tuple[str, str]] = [
+    ("seed", _NONNEG_COUNT), ("*.seed", _NONNEG_COUNT), ("*_seed", _NONNEG_COUNT),
+    ("discover.folds", _TWO_OR_MORE), ("discover.block", _POSITIVE),
     ("*vehicle.mass", _POSITIVE), ("*vehicle.inertia", _POSITIVE), ("*vehicle.arm", _POSITIVE),
     ("*vehicle.k_f", _POSITIVE), ("*vehicle.k_m", _POSITIVE), ("*vehicle.gravity", _POSITIVE),
     ("models.*.dt", _POSITIVE), ("models.*.substeps", _COUNT), ("discover.oracle.dt", _POSITIVE),
@@ -150,8 +153,10 @@ def _fits(value: object, kind: str) -> bool:
         return value is None or _fits(value, _COUNT)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         return False
-    if kind in (_COUNT, _NONNEG_COUNT) and not isinstance(value, int):
+    if kind in (_COUNT, _NONNEG_COUNT, _TWO_OR_MORE) and not isinstance(value, int):
         return False
+    if kind == _TWO_OR_MORE:
+        return value >= 2
     return value > 0 if kind in (_POSITIVE, _COUNT) else value >= 0
 
 
@@ -183,11 +188,32 @@ def check_values(cfg: dict, where: str = "params.yaml") -> None:
         if band in filt and filt[band] >= nyquist:
             raise ConfigError(f"{where}: recording.filter.{band} = {filt[band]} Hz is at or above the Nyquist "
                               f"frequency {nyquist:g} Hz of recording.filter.rate")
+    _check_protocol(cfg, where)
     band = ((cfg.get("recording") or {}).get("sync") or {}).get("xcorr_band")
     rate = ((cfg.get("recording") or {}).get("sync") or {}).get("rate", 0)
     if band is not None and (len(band) != 2 or not band[0] < band[1] < rate / 2):
         raise ConfigError(f"{where}: recording.sync.xcorr_band must be two frequencies, low < high < "
                           f"{rate / 2:g} Hz (half recording.sync.rate), got {band!r}")
+
+
+def _check_protocol(cfg: dict, where: str) -> None:
+    """The settings the data's rate fixes: the benchmark's flights are at 100 Hz, so the sync and
+    filter grids, every model's step and the oracle's are 10 ms."""
+    from nanosysid.dataio import SAMPLE_PERIOD
+
+    rate = 1 / SAMPLE_PERIOD
+    rec = cfg.get("recording") or {}
+    for key in ("sync", "filter"):
+        r = (rec.get(key) or {}).get("rate")
+        if r is not None and abs(r - rate) > 1e-9 * rate:
+            raise ConfigError(f"{where}: recording.{key}.rate = {r:g} Hz; the benchmark's flights are at {rate:g} Hz "
+                              "(every model and the protocol's horizons assume it)")
+    steps = [(f"models.{m}.dt", (o or {}).get("dt")) for m, o in (cfg.get("models") or {}).items() if isinstance(o, dict)]
+    steps.append(("discover.oracle.dt", ((cfg.get("discover") or {}).get("oracle") or {}).get("dt")))
+    for key, dt in steps:
+        if isinstance(dt, (int, float)) and abs(dt - SAMPLE_PERIOD) > 1e-9:
+            raise ConfigError(f"{where}: {key} = {dt:g} s; the flights are sampled every {SAMPLE_PERIOD:g} s, and a "
+                              "model steps once per sample (use substeps for a finer integration)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

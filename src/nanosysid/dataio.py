@@ -11,7 +11,6 @@ are kept as extras.
 from __future__ import annotations
 
 import contextlib
-import glob
 import json
 import os
 import re
@@ -24,6 +23,7 @@ from typing import Iterator, Sequence
 import numpy as np
 import pandas as pd
 
+from nanosysid import guard
 from nanosysid.errors import ConfigError, DataError
 
 __all__ = [
@@ -38,6 +38,8 @@ __all__ = [
     "read_json_record",
     "json_text",
     "session_of",
+    "flight_files",
+    "check_distinct",
     "atomic_file",
     "atomic_dir",
 ]
@@ -64,6 +66,7 @@ class Flight:
         u: Rotor speeds ``(T, 4)`` in rad/s.
         y: Outputs ``(T, 13)``: position, velocity, quaternion xyzw, body rates.
         extra: Other columns by name, each ``(T,)`` (accelerometer, truth signals, ...).
+        source: The file it was read from (None when made in memory): no output may replace it.
     """
 
     name: str
@@ -71,6 +74,7 @@ class Flight:
     u: np.ndarray
     y: np.ndarray
     extra: dict[str, np.ndarray] = field(default_factory=dict)
+    source: Path | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
         T = len(self.t)
@@ -140,6 +144,45 @@ def json_text(payload, *, indent: int | None = 1, sort_keys: bool = False) -> st
     if replaced and isinstance(out, dict):
         out["non_finite"] = replaced
     return json.dumps(out, indent=indent, sort_keys=sort_keys, allow_nan=False) + "\n"
+
+
+def flight_files(folder: str | os.PathLike) -> list[Path]:
+    """The flight CSV files under ``folder``, sorted, every name checked: one :class:`DataError`
+    for a name not of the form ``<trajectory>_<date>_run<k>``, two files of one flight (``run1``
+    and ``run01``, or one name in two subfolders) and a flight file with another case of the
+    extension (``.CSV``), which would otherwise be left out without a word."""
+    folder = Path(folder)
+    files, seen = [], {}
+    for f in sorted(p for p in folder.rglob("*") if p.suffix.lower() == ".csv" and p.is_file()):
+        if f.suffix != ".csv":
+            raise DataError(f"{f}: the extension is {f.suffix!r}; flight files end in '.csv' (rename it)")
+        try:
+            trajectory, run = parse_flight_name(f.stem)
+        except ValueError as e:
+            raise DataError(f"{f}: {e}") from None
+        key = (trajectory, session_of(f.stem), run)
+        if key in seen:
+            raise DataError(f"{f}: the same flight as {seen[key]} ({trajectory}, session {key[1]}, run {run}); "
+                            "keep one of them")
+        seen[key] = f
+        files.append(f)
+    return files
+
+
+def check_distinct(flights: Sequence[Flight]) -> None:
+    """Refuse two flights holding the same samples under different names (a test flight copied
+    under a training name would be trained on and scored on)."""
+    import hashlib
+
+    seen: dict[str, Flight] = {}
+    for f in flights:
+        h = hashlib.sha256(np.ascontiguousarray(np.column_stack([f.t, f.u, f.y])).tobytes()).hexdigest()
+        if h in seen:
+            a, b = seen[h], f
+            where = lambda g: str(g.source) if g.source else g.name  # noqa: E731
+            raise DataError(f"{where(b)}: the same samples as {where(a)}; a flight must be in the data once "
+                            "(a copy under another name leaks between training and test)")
+        seen[h] = f
 
 
 def session_of(name: str) -> str:
@@ -233,6 +276,7 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
         u=np.stack([values[c] for c in INPUT_COLUMNS], axis=1),
         y=np.stack([values[c] for c in OUTPUT_COLUMNS], axis=1),
         extra={c: values[c] for c in df.columns if c not in ("t", *INPUT_COLUMNS, *OUTPUT_COLUMNS)},
+        source=path,
     )
 
 
@@ -258,7 +302,7 @@ def write_flight_csv(flight: Flight, path: str | os.PathLike) -> None:
     missing = [c for c in SCHEMA if c not in df.columns]
     if missing:
         raise ValueError(f"flight {flight.name}: cannot write, no values for {missing}")
-    with atomic_file(path) as tmp:
+    with atomic_file(path, inputs=[flight.source] if flight.source else ()) as tmp:
         df.to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
 
 
@@ -268,48 +312,30 @@ def _umask() -> int:
     return mask
 
 
-def _sweep(path: Path) -> None:
-    """Remove what a killed earlier write of ``path`` left beside it (our own temporary names)."""
-    for leftover in path.parent.glob(f".{glob.escape(path.name)}.*"):
-        if leftover.name.endswith((".tmp", ".old")):
-            shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink()
-
-
 @contextlib.contextmanager
-def atomic_file(path: str | os.PathLike) -> Iterator[Path]:
+def atomic_file(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike] = (),
+                replace: bool = False) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` only on success.
 
-    The file gets the user's umask (a temporary file is private until then), and what a killed
-    earlier write left beside ``path`` is removed first.
+    The output guard (:func:`nanosysid.guard.claim`) checks ``path`` first: not an input
+    (``inputs`` and the stage's own), not another stage's output, not a file no run of this
+    stage wrote (``replace``: a file the project edits in place), one writer at a time. The file
+    gets the user's umask (a temporary file is private until then).
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _sweep(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.chmod(tmp, 0o666 & ~_umask())
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    with guard.claim(path, "file", inputs=inputs, replace=replace) as c:
+        tmp = c.temporary()
+        try:
+            yield tmp
+            os.chmod(tmp, 0o666 & ~_umask())
+            c.done(tmp)
+            os.replace(tmp, path)
+        finally:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
 
 
-OWNER = ".nanosysid-output"  # the mark of a folder a stage wrote, and may replace
-
-
-def check_output_dir(path: Path, inputs: Sequence[str | os.PathLike] = ()) -> None:
-    """Refuse an output folder that is, contains or lies inside one of the stage's inputs, or
-    that holds files no stage wrote (a folder of the user's, which replacing would wipe)."""
-    out = path.resolve()
-    for given in inputs:
-        inp = Path(given).resolve()
-        if out == inp or out in inp.parents or inp in out.parents:
-            raise ConfigError(f"{path}: the output folder would overlap the input {given}; choose another folder")
-    if path.is_dir() and any(path.iterdir()) and not (path / OWNER).is_file():
-        raise ConfigError(f"{path}: holds files no stage of this pipeline wrote; refusing to replace it "
-                          "(choose a new or empty folder)")
+OWNER = guard.OWNER  # the mark of a folder a stage wrote
 
 
 @contextlib.contextmanager
@@ -317,26 +343,26 @@ def atomic_dir(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike] =
     """Yield a temporary directory beside ``path``; swap it in for ``path`` only on success.
 
     The previous contents of ``path`` stay in place until the new directory is complete, and
-    are replaced only if a stage wrote them (:func:`check_output_dir`; ``inputs`` are the
-    stage's input folders). The directory gets the user's umask and the mark :data:`OWNER`,
-    and what a killed earlier run left beside ``path`` is removed first.
+    are replaced only if a run of this stage wrote them (:func:`nanosysid.guard.claim`;
+    ``inputs`` are inputs beyond the stage's declared ones). The directory gets the user's umask
+    and the mark :data:`OWNER`.
     """
     path = Path(path)
-    check_output_dir(path, inputs)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    _sweep(path)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
-    try:
-        yield tmp
-        (tmp / OWNER).write_text("written by a nanosysid stage; the stage replaces this folder as a whole\n")
-        os.chmod(tmp, 0o777 & ~_umask())
-        if path.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".old", dir=path.parent))
-            os.replace(path, old / "x")
-            os.replace(tmp, path)
-            shutil.rmtree(old)
-        else:
-            os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp)
+    with guard.claim(path, "folder", inputs=inputs) as c:
+        tmp = c.temporary()
+        try:
+            yield tmp
+            (tmp / OWNER).write_text("written by a nanosysid stage; the stage replaces this folder as a whole\n")
+            os.chmod(tmp, 0o777 & ~_umask())
+            c.done(tmp)
+            if path.exists():
+                old = Path(tempfile.mkdtemp(prefix=f".{path.name}.{guard.TMP}", suffix=".old", dir=path.parent))
+                os.replace(path, old / "x")
+                os.replace(tmp, path)
+                shutil.rmtree(old)
+            else:
+                os.replace(tmp, path)
+        finally:
+            c.forget(tmp)
+            if tmp.exists():
+                shutil.rmtree(tmp)

@@ -222,6 +222,46 @@ def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, p
     return fit_thrust(flights, vehicle), fit_yaw_moment(flights, vehicle, window=window, polyorder=polyorder)
 
 
+PLAUSIBLE_FACTOR = 3.0  # k_F and k_M / k_F further than this factor from the vehicle's nominal ones are refused
+MIN_THRUST_R2 = 0.5  # the thrust must explain most of the vertical force, or the data are not flight
+
+
+def check_plausible(thrust: Fit, yaw: Fit, vehicle: Vehicle) -> None:
+    """Refuse coefficients the vehicle cannot have, or that the data do not determine, before they
+    are written: k_F, or the yaw torque per thrust k_M / k_F, more than :data:`PLAUSIBLE_FACTOR`
+    from the nominal ``vehicle``'s (a unit mistake: rpm for rad/s, gravity left out of the
+    accelerometer), a thrust fit with R² below :data:`MIN_THRUST_R2`, or a 95 % interval that holds zero.
+
+    Raises:
+        DataError: naming the coefficient, its estimate, interval and R², and what would help.
+    """
+    from nanosysid.errors import DataError
+
+    def where(name: str, fit: Fit) -> str:
+        ci = "" if fit.ci95 is None else f", 95 % interval {fit.ci95[0]:.4g} to {fit.ci95[1]:.4g}"
+        return f"identify: {name} = {fit.coef:.4g}{ci}, R² {fit.r2:.3f} ({fit.flights} flight(s), {fit.estimator})"
+
+    def off(value: float, nominal: float) -> bool:
+        return not (np.isfinite(value) and nominal / PLAUSIBLE_FACTOR <= value <= nominal * PLAUSIBLE_FACTOR)
+
+    if off(thrust.coef, vehicle.k_f):
+        raise DataError(f"{where('k_F', thrust)}: more than {PLAUSIBLE_FACTOR:g} times off the vehicle's nominal "
+                        f"{vehicle.k_f:.4g}; check the rotor speeds' unit (rad/s), the accelerometer's (m/s², with "
+                        "gravity) and the mass")
+    if not thrust.r2 >= MIN_THRUST_R2:
+        raise DataError(f"{where('k_F', thrust)}: the thrust explains less than {MIN_THRUST_R2:g} of the vertical "
+                        "force; check that the accelerometer and the rotor speeds were recorded together")
+    arm, nominal_arm = yaw.coef / thrust.coef, vehicle.k_m / vehicle.k_f
+    if off(arm, nominal_arm):
+        raise DataError(f"{where('k_M', yaw)}: k_M / k_F = {arm * 1e3:.3g} mm, more than {PLAUSIBLE_FACTOR:g} times "
+                        f"off the vehicle's nominal {nominal_arm * 1e3:.3g} mm; the flights do not determine the yaw "
+                        "torque (fly a yaw calibration flight, or flights with yaw manoeuvres)")
+    for name, fit in (("k_F", thrust), ("k_M", yaw)):
+        if fit.ci95 is not None and np.all(np.isfinite(fit.ci95)) and fit.ci95[0] <= 0:
+            raise DataError(f"{where(name, fit)}: the interval holds zero, so the flights do not determine it; "
+                            "add flights that excite it (a yaw calibration flight for k_M)")
+
+
 def save_params(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Flight], *,
                 yaw_paper: Fit | None = None, calibration: Sequence[Flight] = ()) -> dict[str, Any]:
     """Write ``params.json``: k_F and k_M, their fits (estimator, 95 % interval, conditioning),

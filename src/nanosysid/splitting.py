@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from nanosysid.dataio import atomic_dir, json_text, parse_flight_name, read_flight_csv
+from nanosysid.dataio import atomic_dir, check_distinct, flight_files, json_text, parse_flight_name, read_flight_csv
 from nanosysid.errors import ConfigError, DataError
 
 __all__ = ["split_folder"]
@@ -35,19 +35,12 @@ def split_folder(
     both = set(train) & set(test)
     if both:
         raise ConfigError(f"split: trajectories {sorted(both)} are listed for both train and test")
-    files = sorted(src.rglob("*.csv"))
+    files = flight_files(src)
     if not files:
         raise DataError(f"{src}: no flight CSV files found")
     parts: dict[str, list[Path]] = {"train": [], "test": []}
-    seen: dict[str, Path] = {}
     for f in files:
-        try:
-            trajectory, _ = parse_flight_name(f.stem)
-        except ValueError as e:
-            raise DataError(f"{f}: {e}") from None
-        if f.name in seen:
-            raise DataError(f"{f}: a flight of the same name is also at {seen[f.name]}")
-        seen[f.name] = f
+        trajectory, _ = parse_flight_name(f.stem)
         part = "train" if trajectory in train else "test" if trajectory in test else None
         if part is None:
             log.info("split: %s left out (trajectory %r in neither list)", f.name, trajectory)
@@ -56,12 +49,14 @@ def split_folder(
     if not parts["test"]:
         raise DataError(f"{src}: no flight of the test trajectories {list(test)}")
     summary: dict = {}
+    read = {f: read_flight_csv(f, min_rows=horizon + 1) for flist in parts.values() for f in flist}
+    check_distinct(list(read.values()))
     with atomic_dir(dst, inputs=[src]) as tmp:
         for part, flist in parts.items():
             (tmp / part).mkdir()
             samples = {}
             for f in flist:
-                samples[f.stem] = len(read_flight_csv(f, min_rows=horizon + 1))
+                samples[f.stem] = len(read[f])
                 shutil.copyfile(f, tmp / part / f.name)
             summary[part] = {"flights": samples, "samples": sum(samples.values())}
         (tmp / "split.json").write_text(json_text(summary))

@@ -74,7 +74,7 @@ from nanosysid.discover import generic
 from nanosysid.discover.fit import COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench, noise_floor
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, refitted_vehicle, split_coefficients
-from nanosysid.errors import DataError, PredictionError
+from nanosysid.errors import ConfigError, DataError, PredictionError
 from nanosysid.metrics import QUANTITIES
 from nanosysid.vehicle import Vehicle
 
@@ -387,6 +387,17 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
 
     if len(train_flights) < 1:
         raise DataError("discover needs at least 1 training flight")
+    # settings that would make every test meaningless (one fold holds nothing out; a block of
+    # no length is one sample, and neighbouring samples are not independent)
+    for name, value, ok, need in (("folds", folds, isinstance(folds, int) and folds >= 2, "an integer of at least 2"),
+                                  ("block", block, np.isfinite(block) and block > 0, "a positive number of seconds"),
+                                  ("alpha", alpha, 0 < alpha < 1, "between 0 and 1"),
+                                  ("floor", floor, np.isfinite(floor) and floor >= 0, "a number of at least 0"),
+                                  ("share", share, 0 <= share <= 1, "between 0 and 1"),
+                                  ("window", window, isinstance(window, int) and window > order and window % 2 == 1,
+                                   f"an odd integer above the order {order}")):
+        if not ok:
+            raise ConfigError(f"discover.{name}: {value!r}; it must be {need}")
     v = vehicle
     if v is None:
         thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)

@@ -132,9 +132,15 @@ def build_network(name: str, options: dict[str, Any]) -> nn.Module:
     except KeyError as e:
         raise ConfigError(e.args[0]) from None
     try:
-        return cls(**options)
-    except TypeError as e:
+        net = cls(**options)
+    except (TypeError, ValueError, RuntimeError) as e:
         raise ConfigError(f"network {name!r}: {e}") from None
+    # a layer of width 0 builds (as empty weights) but passes nothing through
+    empty = [k for k, p in net.named_parameters() if p.numel() == 0]
+    if empty:
+        raise ConfigError(f"network {name!r}: options {options} give {empty[0]} no weights; every layer needs a "
+                          "width of at least 1")
+    return net
 
 
 def build_model(network: dict[str, Any], physics: PhysicsStep | None = None) -> SequenceModel:
@@ -158,6 +164,12 @@ def load_checkpoint(path: str | Path) -> tuple[SequenceModel, dict[str, Any]]:
     if not path.is_file():
         raise DataError(f"{path}: no such checkpoint (train the model first: `dvc repro train@<model>`)")
     try:
+        # torch reads a zip entry without its CRC: a flipped bit would load as other weights
+        with zipfile.ZipFile(path) as z:
+            bad = z.testzip()
+        if bad is not None:
+            raise DataError(f"{path}: the checkpoint is damaged (entry {bad!r} fails its CRC check); "
+                            "train the model again or restore the file")
         ckpt = torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError:
         raise DataError(f"{path}: the checkpoint holds Python objects beyond tensors and plain data; it is "

@@ -162,6 +162,12 @@ def train_model(
         enable_model_summary=False, num_sanity_val_steps=0,
     )
     trainer.fit(module, dl_fit, dl_val)
+    # a diverged run is no model: its best epoch would silently be the untrained start
+    if best.last is not None and not (best.last <= DIVERGED * start):
+        raise ConfigError(f"train: training diverged (validation loss {best.last:.4g} after epoch "
+                          f"{trainer.current_epoch}, {start:.4g} untrained); lower the learning rate (the "
+                          f"model's optimizer.lr, now {getattr(optimizer, 'keywords', {}).get('lr', 'the default')}) "
+                          "or check the data; no model was written")
     model.load_state_dict(best.state)
     model.cpu()
     n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)
@@ -172,15 +178,20 @@ def train_model(
     return summary
 
 
+DIVERGED = 10.0  # a last validation loss this many times the untrained one is a diverged run
+
+
 class _KeepBest(pl.Callback):
     """Keep the weights of the epoch with the lowest validation loss (in memory)."""
 
     def __init__(self, value: float, model: SequenceModel) -> None:
         self.value = value
+        self.last: float | None = None  # the last epoch's validation loss
         self.state = {k: t.detach().cpu().clone() for k, t in model.state_dict().items()}
 
     def on_validation_epoch_end(self, trainer, module) -> None:
         v = float(trainer.callback_metrics["val/loss"])
+        self.last = v
         if v < self.value:
             self.value = v
             self.state = {k: t.detach().cpu().clone() for k, t in module.model.state_dict().items()}

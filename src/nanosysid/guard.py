@@ -1,0 +1,357 @@
+"""One guard for every output a stage writes, file or folder.
+
+Before a file or folder is written (:func:`nanosysid.dataio.atomic_file`,
+:func:`nanosysid.dataio.atomic_dir`) the guard
+
+- refuses an output equal to, inside or containing an input of the stage (its DVC dependencies,
+  resolved with the run's settings, and any the caller names) or another stage's declared output;
+- takes the output's lock, so one run writes it at a time (a second run is told which holds it);
+- refuses to replace an existing path it cannot prove a run of *this* stage wrote: the record
+  beside it (``.<name>.nanosysid``) names the stage, the output and, for a folder, the files
+  it wrote; a file or folder DVC restored is the stage's when ``dvc.lock`` records it for that
+  stage. A file of the user's inside a stage's folder is named, never deleted;
+- removes only its own temporaries (``.<name>.nanosysid-*``), under the lock.
+
+The stage is the one :func:`stage_run` opened (``stages.common.run_stage`` opens it); outside a
+stage (the Python API) the writer is ``python``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import contextvars
+import errno
+import fcntl
+import glob
+import hashlib
+import json
+import os
+import re
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import yaml
+
+from nanosysid.errors import ConfigError
+
+__all__ = ["Claim", "claim", "stage_run", "declared", "record_path", "API"]
+
+API = "python"  # the writer outside any stage
+TMP = "nanosysid-"  # our temporaries: .<name>.nanosysid-<random>.tmp / .old
+_SUFFIX = ".nanosysid"  # the record and lock beside an output
+OWNER = ".nanosysid-output"  # the mark inside a folder a stage wrote (kept as it was: it is part of the folder's bytes)
+
+
+@dataclass
+class _Run:
+    stage: str
+    inputs: tuple[Path, ...] = ()
+    outputs: tuple[Path, ...] = ()
+    others: dict[Path, str] = field(default_factory=dict)  # other stages' outputs -> their stage
+    locked: dict[str, str] = field(default_factory=dict)  # dvc.lock: output path -> md5 (this stage's)
+
+
+_SCRATCH: list[Path] = []  # the temporary folders being written (what is written inside is theirs)
+
+
+_run: contextvars.ContextVar[_Run | None] = contextvars.ContextVar("nanosysid_stage_run", default=None)
+
+
+def _resolve(p: str | os.PathLike) -> Path:
+    return Path(os.path.abspath(os.fspath(p)))
+
+
+def _overlaps(a: Path, b: Path) -> str | None:
+    if a == b:
+        return "is"
+    if b in a.parents:
+        return "lies inside"
+    if a in b.parents:
+        return "contains"
+    return None
+
+
+_VAR = re.compile(r"\$\{([^}]+)\}")
+
+
+def _interpolate(text: str, cfg: Any, scope: dict[str, Any]) -> str | None:
+    from omegaconf import OmegaConf
+
+    def one(m: re.Match) -> str:
+        expr = m.group(1).strip()
+        head, _, rest = expr.partition(".")
+        if head in scope:
+            v = scope[head]
+            for part in filter(None, rest.split(".")):
+                v = v[part]
+        else:
+            v = OmegaConf.select(cfg, expr, throw_on_missing=False)
+        if v is None or isinstance(v, (dict, list)) or OmegaConf.is_config(v):
+            raise KeyError(expr)
+        return str(v)
+
+    try:
+        return _VAR.sub(one, text)
+    except (KeyError, TypeError, IndexError):
+        return None
+
+
+def declared(cfg: Any, dvc_yaml: str | os.PathLike = "dvc.yaml") -> dict[str, tuple[list[str], list[str]]]:
+    """Every stage of ``dvc_yaml`` (``name`` or ``name@item``): its dependencies and outputs, the
+    paths resolved with ``cfg`` (the run's settings, overrides included). Empty without the file."""
+    return {k: ([p for p, _ in d], [p for p, _ in o]) for k, (d, o) in _declared(cfg, dvc_yaml).items()}
+
+
+def _declared(cfg: Any, dvc_yaml: str | os.PathLike) -> dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]]:
+    from omegaconf import OmegaConf
+
+    path = Path(dvc_yaml)
+    if not path.is_file():
+        return {}
+    stages = (yaml.safe_load(path.read_text()) or {}).get("stages", {})
+    out: dict[str, tuple[list[str], list[str]]] = {}
+    for name, st in stages.items():
+        if "foreach" in st:
+            items = OmegaConf.select(cfg, _VAR.fullmatch(str(st["foreach"])).group(1), throw_on_missing=False) \
+                if isinstance(st["foreach"], str) and _VAR.fullmatch(st["foreach"]) else st["foreach"]
+            items = OmegaConf.to_container(items, resolve=True) if OmegaConf.is_config(items) else items
+            pairs = items.items() if isinstance(items, dict) else ((i, i) for i in (items or []))
+            body = st["do"]
+            for key, item in pairs:
+                out[f"{name}@{key}"] = _paths(body, cfg, {"key": key, "item": item})
+        else:
+            out[name] = _paths(st, cfg, {})
+    return out
+
+
+def _paths(st: dict, cfg: Any, scope: dict) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
+    def each(entries) -> list[tuple[str, str]]:
+        got = []
+        for e in entries or []:
+            p = e if isinstance(e, str) else next(iter(e))
+            r = _interpolate(p, cfg, scope)
+            if r:
+                got.append((r, p))
+        return got
+
+    outs = [*each(st.get("outs")), *each(st.get("metrics")), *each(st.get("plots"))]
+    return each(st.get("deps")), outs
+
+
+def _lock_outs(stage: str, dvc_lock: Path) -> dict[str, str]:
+    if not dvc_lock.is_file():
+        return {}
+    try:
+        lock = yaml.safe_load(dvc_lock.read_text()) or {}
+    except yaml.YAMLError:
+        return {}
+    st = (lock.get("stages") or {}).get(stage) or {}
+    return {str(_resolve(o["path"])): o.get("md5", "") for o in st.get("outs", []) if "path" in o}
+
+
+@contextlib.contextmanager
+def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Iterator[None]:
+    """Everything written inside is written by ``stage`` (``name`` or ``name@item``), whose
+    inputs and outputs ``dvc.yaml`` in ``root`` declares (resolved with ``cfg``)."""
+    root = Path(root)
+    layout = _declared(cfg, root / "dvc.yaml") if cfg is not None else {}
+    deps, outs = layout.get(stage, ([], []))
+    others = {_resolve(o): name for name, (_, os_) in layout.items() if name != stage for o, _ in os_}
+    run = _Run(stage, tuple(_resolve(d) for d, _ in deps), tuple(_resolve(o) for o, _ in outs), others,
+               _lock_outs(stage, root / "dvc.lock"))
+    # every declared output against the inputs and the other stages' outputs before any work: a
+    # wrong path fails in a second, not after training (what exists there is checked on writing)
+    for out, template in outs:
+        setting = ", ".join(m.group(1) for m in _VAR.finditer(template) if m.group(1).split(".")[0] not in ("item", "key"))
+        try:
+            _check_inputs(Path(out), run.inputs, "the stage's input")
+            here = _resolve(out)
+            for other, name in others.items():
+                rel = _overlaps(here, other)
+                if rel:
+                    raise ConfigError(f"{out}: the output {rel} {other}, the output of stage {name}; choose another path")
+        except ConfigError as e:
+            raise ConfigError(f"{e}" + (f" (the setting {setting})" if setting else "")) from None
+    token = _run.set(run)
+    try:
+        yield
+    finally:
+        _run.reset(token)
+
+
+def record_path(path: Path) -> Path:
+    """The record (and lock) beside an output."""
+    return path.parent / f".{path.name}{_SUFFIX}"
+
+
+def _md5(path: Path) -> str:
+    h = hashlib.md5()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _files(folder: Path) -> list[str]:
+    return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if not p.is_dir())
+
+
+@dataclass
+class Claim:
+    """An output being written: its path, the writer, and the held lock."""
+    path: Path
+    kind: str  # "file" or "folder"
+    stage: str
+    fd: int | None = None
+    scratch: bool = False  # inside a folder being written: the folder's guard covers it
+
+    def temporary(self) -> Path:
+        """A new temporary beside the output (ours by name, so a later run may remove it)."""
+        import tempfile
+
+        if self.kind == "folder":
+            tmp = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.{TMP}", suffix=".tmp", dir=self.path.parent))
+            _SCRATCH.append(_resolve(tmp))
+            return tmp
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.{TMP}", suffix=".tmp", dir=self.path.parent)
+        os.close(fd)
+        return Path(tmp)
+
+    def done(self, tmp: Path) -> None:
+        """Record what was written (before the swap: the record never names what is not there)."""
+        if self.scratch or self.fd is None:
+            return
+        rec = {"stage": self.stage, "output": os.fspath(self.path), "kind": self.kind}
+        if self.kind == "folder":
+            rec["files"] = _files(tmp)
+        else:
+            rec["md5"] = _md5(tmp)
+        os.ftruncate(self.fd, 0)
+        os.pwrite(self.fd, (json.dumps(rec, indent=1, sort_keys=True) + "\n").encode(), 0)
+
+    def forget(self, tmp: Path) -> None:
+        """The temporary folder is swapped in or removed: what is written there now is checked."""
+        if _resolve(tmp) in _SCRATCH:
+            _SCRATCH.remove(_resolve(tmp))
+
+
+def _read_record(rec: Path) -> dict[str, Any] | None:
+    try:
+        d = json.loads(rec.read_text() or "null")
+    except (OSError, ValueError):
+        return None
+    return d if isinstance(d, dict) else None
+
+
+def _check_inputs(path: Path, inputs: Sequence[Path], what: str) -> None:
+    out = _resolve(path)
+    for inp in inputs:
+        rel = _overlaps(out, inp)
+        if rel:
+            raise ConfigError(f"{path}: the output {rel} {what} {inp}; choose another output path")
+
+
+def _restored(path: Path, run: _Run | None) -> bool:
+    """Whether ``path`` holds what ``dvc.lock`` records for the running stage (DVC put it there)."""
+    md5 = run.locked.get(str(_resolve(path))) if run is not None else None
+    return bool(md5) and md5 == _md5(path)
+
+
+def _ours(path: Path, kind: str, stage: str, rec: dict | None, run: _Run | None) -> None:
+    """Raise unless ``path`` (existing) was written by ``stage`` as a ``kind``."""
+    if kind == "folder" and not path.is_dir():
+        raise ConfigError(f"{path}: is a file where the stage writes a folder; move it away or choose another path")
+    if kind == "file" and path.is_dir():
+        raise ConfigError(f"{path}: is a folder where the stage writes a file; move it away or choose another path")
+    if rec is not None and rec.get("output") is not None:
+        if rec.get("stage") != stage:
+            raise ConfigError(f"{path}: written by stage {rec.get('stage')}, not by {stage}; refusing to replace "
+                              "another stage's output (choose another path)")
+        if kind == "file" and rec.get("md5") not in (None, _md5(path)) and not _restored(path, run):
+            raise ConfigError(f"{path}: changed since stage {stage} wrote it; refusing to overwrite it "
+                              "(move it away to keep it, or delete it)")
+        if kind == "folder":
+            known = set(rec.get("files") or [])
+            foreign = [f for f in _files(path) if f not in known]
+            if foreign:
+                raise ConfigError(f"{path / foreign[0]}: not written by stage {stage} (" + (
+                    f"and {len(foreign) - 1} more " if len(foreign) > 1 else "") +
+                    "in its output folder); move it out, the stage replaces the folder as a whole")
+        return
+    # no record: what DVC restored, or an older run's folder
+    declared_here = run is not None and _resolve(path) in run.outputs
+    if kind == "file":
+        if _restored(path, run):
+            return
+        raise ConfigError(f"{path}: exists and no run of stage {stage} wrote it; refusing to overwrite it "
+                          "(move it away or choose another path)")
+    if not any(path.iterdir()) or ((path / OWNER).is_file() and (declared_here or run is None)):
+        return
+    raise ConfigError(f"{path}: holds files no run of stage {stage} wrote; refusing to replace it "
+                      "(choose a new or empty folder)")
+
+
+@contextlib.contextmanager
+def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathLike] = (),
+          replace: bool = False) -> Iterator[Claim]:
+    """Hold ``path`` for writing as a ``kind`` (``"file"``, ``"folder"``): checked, locked, and
+    cleared of our own leftovers. ``replace``: a file the project edits in place (the README)."""
+    path = Path(path)
+    run = _run.get()
+    stage = run.stage if run is not None else API
+    here = _resolve(path)
+    if any(s in here.parents for s in _SCRATCH):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        yield Claim(path, kind, stage, scratch=True)
+        return
+    _check_inputs(path, [_resolve(i) for i in inputs], "the input")
+    if run is not None:
+        _check_inputs(path, run.inputs, "the stage's input")
+        for other, name in run.others.items():
+            rel = _overlaps(here, other)
+            if rel:
+                raise ConfigError(f"{path}: the output {rel} {other}, the output of stage {name}; "
+                                  "choose another output path")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except (FileExistsError, NotADirectoryError):
+        raise ConfigError(f"{path}: a parent of the output is a file; choose another path") from None
+    rec_path = record_path(path)
+    created = not os.path.lexists(rec_path)
+    fd = os.open(rec_path, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as e:
+        os.close(fd)
+        if e.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+            raise
+        holder = (_read_record(rec_path) or {}).get("writing", "another run")
+        raise ConfigError(f"{path}: being written by {holder}; wait for it to finish, or choose another output") from None
+    c = Claim(path, kind, stage, fd)
+    rec = _read_record(rec_path)
+    try:
+        if path.exists() and not replace:
+            _ours(path, kind, stage, rec, run)
+        # who is writing, for a second run to name (the record proper is written on success)
+        os.ftruncate(fd, 0)
+        kept = {k: v for k, v in (rec or {}).items() if k != "writing"}
+        os.pwrite(fd, (json.dumps({**kept, "writing": f"stage {stage} (process {os.getpid()})"}, sort_keys=True)
+                       + "\n").encode(), 0)
+        for leftover in path.parent.glob(f".{glob.escape(path.name)}.{TMP}*"):
+            if leftover.name.endswith((".tmp", ".old")):
+                shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink()
+        yield c
+    except BaseException:
+        # a failed write leaves the record as it was
+        if c.fd is not None:
+            os.ftruncate(c.fd, 0)
+            if rec is not None:
+                os.pwrite(c.fd, (json.dumps(rec, indent=1, sort_keys=True) + "\n").encode(), 0)
+        raise
+    finally:
+        os.close(fd)  # closing releases the lock
+        c.fd = None
+        if created and not _read_record(rec_path):
+            rec_path.unlink(missing_ok=True)  # a refused or failed first write leaves no record

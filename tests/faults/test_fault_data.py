@@ -1,0 +1,84 @@
+"""Flight identity where data enters: a flight is in the data once, under one name, and no file
+of flight data is left out without a word."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+
+from nanosysid import benchmark
+from nanosysid.dataio import write_flight_csv
+from nanosysid.errors import DataError
+from nanosysid.splitting import split_folder
+from nanosysid.synthetic import synthetic_flights
+
+CLASS = "silent acceptance"
+
+NAMES = ["square_20250101_run1", "chirp_20250101_run1", "melon_20250101_run1", "melon_20250101_run2"]
+
+
+@pytest.fixture(scope="module")
+def flights():
+    return synthetic_flights(NAMES, 70, seed=2)
+
+
+@pytest.fixture
+def folder(tmp_path, flights):
+    """A benchmark folder (train/, test/) and a flat folder of the same flights."""
+    for f in flights:
+        part = "test" if f.name.startswith("melon") else "train"
+        write_flight_csv(f, tmp_path / "bench" / part / f"{f.name}.csv")
+        write_flight_csv(f, tmp_path / "flat" / f"{f.name}.csv")
+    return tmp_path
+
+
+def load_bench(root):
+    return benchmark.load(root / "bench", horizon=10)
+
+
+def split_flat(root):
+    return split_folder(root / "flat", root / "split", train=["square", "chirp"], test=["melon"], horizon=10)
+
+
+def copy(src, dst):
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(src, dst)
+
+
+CASES = [
+    # (case, change to the bench folder, change to the flat folder, words)
+    ("run1 and run01", lambda r: copy(r / "bench/train/square_20250101_run1.csv", r / "bench/train/square_20250101_run01.csv"),
+     lambda r: copy(r / "flat/square_20250101_run1.csv", r / "flat/square_20250101_run01.csv"), "the same flight as"),
+    ("one name in two subfolders", lambda r: copy(r / "bench/train/chirp_20250101_run1.csv", r / "bench/train/b/chirp_20250101_run1.csv"),
+     lambda r: copy(r / "flat/chirp_20250101_run1.csv", r / "flat/b/chirp_20250101_run1.csv"), "the same flight as"),
+    ("a test flight under a training name", lambda r: copy(r / "bench/test/melon_20250101_run1.csv", r / "bench/train/square_20250101_run7.csv"),
+     lambda r: copy(r / "flat/melon_20250101_run1.csv", r / "flat/square_20250101_run7.csv"), "the same samples as"),
+    ("a training flight copied under another date", lambda r: copy(r / "bench/train/chirp_20250101_run1.csv", r / "bench/train/chirp_20250102_run1.csv"),
+     lambda r: copy(r / "flat/chirp_20250101_run1.csv", r / "flat/chirp_20250102_run1.csv"), "the same samples as"),
+    ("an upper-case extension", lambda r: (r / "bench/test/melon_20250101_run2.csv").rename(r / "bench/test/melon_20250101_run2.CSV"),
+     lambda r: (r / "flat/melon_20250101_run2.csv").rename(r / "flat/melon_20250101_run2.CSV"), "'.CSV'"),
+    ("a name of another form", lambda r: copy(r / "bench/train/chirp_20250101_run1.csv", r / "bench/train/chirp-final.csv"),
+     lambda r: copy(r / "flat/chirp_20250101_run1.csv", r / "flat/chirp-final.csv"), "is not of the form"),
+    ("one flight in train and test", lambda r: copy(r / "bench/test/melon_20250101_run1.csv", r / "bench/train/melon_20250101_run1.csv"),
+     None, "in both train/ and test/"),
+]
+
+
+MATRIX = [(entry, case, change, words) for case, bench, flat, words in CASES
+          for entry, change in (("benchmark.load", bench), ("split", flat)) if change is not None]
+
+
+@pytest.mark.parametrize("entry,case,change,words", MATRIX, ids=[f"{m[0]}: {m[1]}" for m in MATRIX])
+def test_a_flight_twice_or_out_of_sight_is_one_clear_error(folder, entry, case, change, words):
+    action = load_bench if entry == "benchmark.load" else split_flat
+    change(folder)
+    with pytest.raises(DataError, match=words) as e:
+        action(folder)
+    assert str(folder) in str(e.value)
+    assert not (folder / "split").exists()
+
+
+def test_the_clean_folders_load(folder):
+    assert [f.name for f in load_bench(folder).test] == NAMES[2:]
+    assert split_flat(folder)["test"]["samples"] == 2 * 70

@@ -1,0 +1,71 @@
+"""Operating-system faults while a stage writes: one line naming the path and what to do, exit
+code 2, no traceback, and nothing half-written left behind."""
+
+from __future__ import annotations
+
+import errno
+import os
+from pathlib import Path
+
+import pytest
+
+from nanosysid import dataio
+from stages.common import run_stage
+
+ROOT = Path(__file__).resolve().parents[2]
+
+FAULTS = [
+    (errno.ENOSPC, "No space left on device", "the disk is full"),
+    (errno.EDQUOT, "Disk quota exceeded", "quota"),
+    (errno.EROFS, "Read-only file system", "read-only"),
+    (errno.EACCES, "Permission denied", "no permission"),
+    (errno.EPERM, "Operation not permitted", "not permitted"),
+    (errno.EIO, "Input/output error", "check the path and the disk"),
+    (errno.ENAMETOOLONG, "File name too long", "shorter path"),
+]
+
+CLASS = "operating-system fault"
+
+
+@pytest.mark.parametrize("where", ["file", "folder"])
+@pytest.mark.parametrize("code,text,hint", FAULTS, ids=[f[1] for f in FAULTS])
+def test_a_fault_while_writing_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys, where, code, text, hint):
+    out = tmp_path / "results" / ("scores.json" if where == "file" else "eval")
+    real_replace = os.replace
+
+    def failing_replace(src, dst):
+        if Path(dst) == out:
+            raise OSError(code, text, str(dst))
+        return real_replace(src, dst)
+
+    def main(cfg):
+        monkeypatch.setattr(dataio.os, "replace", failing_replace)
+        if where == "file":
+            with dataio.atomic_file(out) as tmp:
+                tmp.write_text("{}")
+        else:
+            with dataio.atomic_dir(out) as tmp:
+                (tmp / "scores.json").write_text("{}")
+
+    main.__module__ = "stages.faulty"
+    assert run_stage(main, description="", argv=["--params", str(ROOT / "params.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and err.startswith(f"error: {out}: {text}") and hint in err, err
+    left = [p.name for p in out.parent.iterdir()]
+    assert left == [], left  # no temporary, no output, no record of a write that never happened
+
+
+@pytest.mark.parametrize("name", ["with space", "non-ascii-é", "quote's"])
+def test_unusual_characters_in_an_output_path_are_written(tmp_path, name):
+    out = tmp_path / name / "x.json"
+    with dataio.atomic_file(out) as tmp:
+        tmp.write_text("{}")
+    assert out.read_text() == "{}"
+
+
+def test_an_output_whose_parent_is_a_file_is_one_clear_error(tmp_path):
+    (tmp_path / "a").write_text("a file")
+    with pytest.raises(dataio.ConfigError, match=r"a parent of the output is a file"):
+        with dataio.atomic_file(tmp_path / "a" / "b" / "c.json") as tmp:
+            tmp.write_text("{}")
+    assert (tmp_path / "a").read_text() == "a file"
