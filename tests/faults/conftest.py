@@ -12,7 +12,10 @@ from pathlib import Path
 
 import pytest
 
+from nanosysid import config
+
 HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
 RECORD = HERE / "record.json"
 _outcomes: dict[str, str] = {}
 _classes: dict[str, str] = {}
@@ -55,3 +58,11 @@ def pytest_sessionfinish(session, exitstatus):
     text = json.dumps(record, indent=1, sort_keys=True) + "\n"
     if not RECORD.exists() or RECORD.read_text() != text:
         RECORD.write_text(text)
+
+
+@pytest.fixture(scope="session")
+def params(tmp_path_factory):
+    """``params.yaml`` composed from ``conf/`` (the committed one may be stale while conf/ is edited)."""
+    path = tmp_path_factory.mktemp("params") / "params.yaml"
+    config.compose([], out=path, conf_dir=ROOT / "conf")
+    return path

@@ -12,7 +12,6 @@ import pytest
 from nanosysid import dataio
 from stages.common import run_stage
 
-ROOT = Path(__file__).resolve().parents[2]
 
 FAULTS = [
     (errno.ENOSPC, "No space left on device", "the disk is full"),
@@ -29,7 +28,8 @@ CLASS = "operating-system fault"
 
 @pytest.mark.parametrize("where", ["file", "folder"])
 @pytest.mark.parametrize("code,text,hint", FAULTS, ids=[f[1] for f in FAULTS])
-def test_a_fault_while_writing_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys, where, code, text, hint):
+def test_a_fault_while_writing_is_one_line_and_leaves_nothing(tmp_path, monkeypatch, capsys, params, where, code, text,
+                                                                 hint):
     out = tmp_path / "results" / ("scores.json" if where == "file" else "eval")
     real_replace = os.replace
 
@@ -48,7 +48,7 @@ def test_a_fault_while_writing_is_one_line_and_leaves_nothing(tmp_path, monkeypa
                 (tmp / "scores.json").write_text("{}")
 
     main.__module__ = "stages.faulty"
-    assert run_stage(main, description="", argv=["--params", str(ROOT / "params.yaml")]) == 2
+    assert run_stage(main, description="", argv=["--params", str(params)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith(f"error: {out}: {text}") and hint in err, err
     left = [p.name for p in out.parent.iterdir()]

@@ -3,14 +3,12 @@ read, in one line naming the setting and what it must be."""
 
 from __future__ import annotations
 
-from pathlib import Path
 
 import pytest
 
 from nanosysid import config
 from nanosysid.errors import ConfigError
 
-ROOT = Path(__file__).resolve().parents[2]
 
 CASES = [
     ("seed=abc", "seed must be a whole number >= 0"),
@@ -40,13 +38,6 @@ CASES = [
 ]
 
 CLASS = "unchecked setting"
-
-
-@pytest.fixture(scope="module")
-def params(tmp_path_factory):
-    path = tmp_path_factory.mktemp("params") / "params.yaml"
-    config.compose([], out=path, conf_dir=ROOT / "conf")
-    return path
 
 
 @pytest.mark.parametrize("override,words", CASES, ids=[c[0] for c in CASES])

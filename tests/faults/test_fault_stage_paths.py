@@ -8,7 +8,6 @@ from pathlib import Path
 
 import pytest
 
-from nanosysid import config
 from stages import (compare, discover, evaluate, extract, filter as filter_stage, identify, quality, report, simulate,
                     split, sync, train, visualize)
 from stages.common import run_stage
@@ -63,13 +62,6 @@ CASES = [
 ]
 
 CLASS = "data loss"
-
-
-@pytest.fixture(scope="module")
-def params(tmp_path_factory):
-    path = tmp_path_factory.mktemp("params") / "params.yaml"
-    config.compose([], out=path, conf_dir=ROOT / "conf")
-    return path
 
 
 @pytest.mark.parametrize("stage,name,setting,value,words", CASES,
