@@ -151,8 +151,16 @@ def test_identify_writes_coefficients_and_figure(tiny):
 
 
 def test_identify_without_a_calibration_flight_names_its_estimator_and_the_bias_risk(tiny, tmp_path):
-    # a user's CSVs (here the training flights alone): no flight with yaw excitation
-    assert run(identify, tiny, f"data.flights_dir={tiny / 'split' / 'train'}", f"identify.out_dir={tmp_path}") == 0
+    # a user's CSVs (here the four benchmark flights for training): no flight with yaw excitation;
+    # the two training flights alone leave k_M undetermined (its interval holds zero: refused)
+    user = tmp_path / "user"
+    for f in [*(tiny / "split").rglob("*.csv")]:
+        (user / "train").mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(f, user / "train" / f.name)
+    (user / "test").mkdir()
+    shutil.copyfile(tiny / "flights" / "yawsweep_20250601_run1.csv", user / "test" / "yawsweep_20250601_run1.csv")
+    assert run(identify, tiny, f"paths.split={user}", f"data.flights_dir={user / 'train'}",
+               f"identify.out_dir={tmp_path}") == 0
     fit = json.loads((tmp_path / "params.json").read_text())
     assert fit["calibration_flights"] == [] and "yaw_fit_paper_method" not in fit
     assert "least squares" in fit["yaw_fit"]["estimator"] and fit["closed_loop_bias"].startswith("possible")

@@ -153,7 +153,7 @@ def flight_files(folder: str | os.PathLike) -> list[Path]:
     extension (``.CSV``), which would otherwise be left out without a word."""
     folder = Path(folder)
     files, seen = [], {}
-    for f in sorted(p for p in folder.rglob("*") if p.suffix.lower() == ".csv" and p.is_file()):
+    for f in sorted(p for p in folder.rglob("*") if p.suffix.lower() == ".csv"):
         if f.suffix != ".csv":
             raise DataError(f"{f}: the extension is {f.suffix!r}; flight files end in '.csv' (rename it)")
         try:

@@ -223,7 +223,8 @@ class Claim:
         """Record what was written (before the swap: the record never names what is not there)."""
         if self.scratch or self.fd is None:
             return
-        rec = {"stage": self.stage, "output": os.fspath(self.path), "kind": self.kind}
+        # the name only: the record lies beside the output, and a moved tree keeps its records true
+        rec = {"stage": self.stage, "output": self.path.name, "kind": self.kind}
         if self.kind == "folder":
             rec["files"] = _files(tmp)
         else:

@@ -222,13 +222,16 @@ def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, p
     return fit_thrust(flights, vehicle), fit_yaw_moment(flights, vehicle, window=window, polyorder=polyorder)
 
 
-PLAUSIBLE_FACTOR = 3.0  # k_F and k_M / k_F further than this factor from the vehicle's nominal ones are refused
+# how far from the vehicle's nominal an identified coefficient may lie: k_F is determined to a
+# per cent even in closed loop (further is a unit mistake); the paper's least squares puts k_M
+# several times low in closed loop, and that estimate is still reported, with its warning
+PLAUSIBLE_FACTOR = {"k_F": 3.0, "k_M / k_F": 10.0}
 MIN_THRUST_R2 = 0.5  # the thrust must explain most of the vertical force, or the data are not flight
 
 
 def check_plausible(thrust: Fit, yaw: Fit, vehicle: Vehicle) -> None:
     """Refuse coefficients the vehicle cannot have, or that the data do not determine, before they
-    are written: k_F, or the yaw torque per thrust k_M / k_F, more than :data:`PLAUSIBLE_FACTOR`
+    are written: k_F, or the yaw torque per thrust k_M / k_F, further than :data:`PLAUSIBLE_FACTOR`
     from the nominal ``vehicle``'s (a unit mistake: rpm for rad/s, gravity left out of the
     accelerometer), a thrust fit with R² below :data:`MIN_THRUST_R2`, or a 95 % interval that holds zero.
 
@@ -241,19 +244,21 @@ def check_plausible(thrust: Fit, yaw: Fit, vehicle: Vehicle) -> None:
         ci = "" if fit.ci95 is None else f", 95 % interval {fit.ci95[0]:.4g} to {fit.ci95[1]:.4g}"
         return f"identify: {name} = {fit.coef:.4g}{ci}, R² {fit.r2:.3f} ({fit.flights} flight(s), {fit.estimator})"
 
-    def off(value: float, nominal: float) -> bool:
-        return not (np.isfinite(value) and nominal / PLAUSIBLE_FACTOR <= value <= nominal * PLAUSIBLE_FACTOR)
+    def off(value: float, nominal: float, name: str) -> bool:
+        k = PLAUSIBLE_FACTOR[name]
+        return not (np.isfinite(value) and nominal / k <= value <= nominal * k)
 
-    if off(thrust.coef, vehicle.k_f):
-        raise DataError(f"{where('k_F', thrust)}: more than {PLAUSIBLE_FACTOR:g} times off the vehicle's nominal "
+    if off(thrust.coef, vehicle.k_f, "k_F"):
+        raise DataError(f"{where('k_F', thrust)}: more than {PLAUSIBLE_FACTOR['k_F']:g} times off the vehicle's nominal "
                         f"{vehicle.k_f:.4g}; check the rotor speeds' unit (rad/s), the accelerometer's (m/s², with "
                         "gravity) and the mass")
     if not thrust.r2 >= MIN_THRUST_R2:
         raise DataError(f"{where('k_F', thrust)}: the thrust explains less than {MIN_THRUST_R2:g} of the vertical "
                         "force; check that the accelerometer and the rotor speeds were recorded together")
     arm, nominal_arm = yaw.coef / thrust.coef, vehicle.k_m / vehicle.k_f
-    if off(arm, nominal_arm):
-        raise DataError(f"{where('k_M', yaw)}: k_M / k_F = {arm * 1e3:.3g} mm, more than {PLAUSIBLE_FACTOR:g} times "
+    if off(arm, nominal_arm, "k_M / k_F"):
+        raise DataError(f"{where('k_M', yaw)}: k_M / k_F = {arm * 1e3:.3g} mm, more than "
+                        f"{PLAUSIBLE_FACTOR['k_M / k_F']:g} times "
                         f"off the vehicle's nominal {nominal_arm * 1e3:.3g} mm; the flights do not determine the yaw "
                         "torque (fly a yaw calibration flight, or flights with yaw manoeuvres)")
     for name, fit in (("k_F", thrust), ("k_M", yaw)):
