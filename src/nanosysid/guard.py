@@ -281,14 +281,15 @@ def _ours(path: Path, kind: str, stage: str, rec: dict | None, run: _Run | None)
                     f"and {len(foreign) - 1} more " if len(foreign) > 1 else "") +
                     "in its output folder); move it out, the stage replaces the folder as a whole")
         return
-    # no record: what DVC restored, or an older run's folder
-    declared_here = run is not None and _resolve(path) in run.outputs
+    # no record: what DVC restored, or an older run's output
     if kind == "file":
         if _restored(path, run):
             return
         raise ConfigError(f"{path}: exists and no run of stage {stage} wrote it; refusing to overwrite it "
                           "(move it away or choose another path)")
-    if not any(path.iterdir()) or ((path / OWNER).is_file() and (declared_here or run is None)):
+    # a folder a stage marked (written before records existed, or restored around DVC's deleted
+    # outputs); which stage may write where was checked against dvc.yaml before
+    if not any(path.iterdir()) or (path / OWNER).is_file():
         return
     raise ConfigError(f"{path}: holds files no run of stage {stage} wrote; refusing to replace it "
                       "(choose a new or empty folder)")
