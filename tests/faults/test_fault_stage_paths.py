@@ -81,3 +81,20 @@ def test_an_output_over_an_input_or_another_stages_output_fails_first(tmp_path, 
     assert code == 2 and err.count("\n") == 0, err
     assert words in err and setting in err, err
     assert sorted(str(p) for p in tmp_path.rglob("*")) == before
+
+
+def test_the_default_layout_has_no_output_over_an_input_or_another_output(params, monkeypatch):
+    # the check every stage run makes, over the whole pipeline at once: the shipped settings pass
+    from itertools import combinations
+
+    from nanosysid import config, guard
+
+    monkeypatch.chdir(ROOT)
+    layout = guard.declared(config.load_params([], path=params))
+    assert len(layout) > 20 and {"simulate", "train@lstm", "evaluate@naive", "report"} <= set(layout)
+    clashes = [(s, o, d) for s, (deps, outs) in layout.items() for o in outs for d in deps
+               if guard._overlaps(guard._resolve(o), guard._resolve(d))]
+    outs = [(s, o) for s, (_, os_) in layout.items() for o in os_]
+    clashes += [(a, x, b, y) for (a, x), (b, y) in combinations(outs, 2)
+                if a != b and guard._overlaps(guard._resolve(x), guard._resolve(y))]
+    assert clashes == []
