@@ -167,11 +167,7 @@ def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Ite
         setting = ", ".join(m.group(1) for m in _VAR.finditer(template) if m.group(1).split(".")[0] not in ("item", "key"))
         try:
             _check_inputs(Path(out), run.inputs, "the stage's input")
-            here = _resolve(out)
-            for other, name in others.items():
-                rel = _overlaps(here, other)
-                if rel:
-                    raise ConfigError(f"{out}: the output {rel} {other}, the output of stage {name}; choose another path")
+            _check_others(Path(out), run.others)
         except ConfigError as e:
             raise ConfigError(f"{e}" + (f" (the setting {setting})" if setting else "")) from None
     token = _run.set(run)
@@ -260,6 +256,14 @@ def _restored(path: Path, run: _Run | None) -> bool:
     return bool(md5) and md5 == _md5(path)
 
 
+def _check_others(path: Path, others: dict[Path, str]) -> None:
+    here = _resolve(path)
+    for other, name in others.items():
+        rel = _overlaps(here, other)
+        if rel:
+            raise ConfigError(f"{path}: the output {rel} {other}, the output of stage {name}; choose another path")
+
+
 def _ours(path: Path, kind: str, stage: str, rec: dict | None, run: _Run | None) -> None:
     """Raise unless ``path`` (existing) was written by ``stage`` as a ``kind``."""
     if kind == "folder" and not path.is_dir():
@@ -311,11 +315,7 @@ def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathL
     _check_inputs(path, [_resolve(i) for i in inputs], "the input")
     if run is not None:
         _check_inputs(path, run.inputs, "the stage's input")
-        for other, name in run.others.items():
-            rel = _overlaps(here, other)
-            if rel:
-                raise ConfigError(f"{path}: the output {rel} {other}, the output of stage {name}; "
-                                  "choose another output path")
+        _check_others(path, run.others)
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
