@@ -7,8 +7,8 @@ from typing import Any, Mapping
 from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
-from nanosysid.bags.extract import extract_bag, find_bags
-from nanosysid.dataio import atomic_dir
+from nanosysid.bags.extract import STREAM_COLUMNS, extract_bag, find_bags
+from nanosysid.dataio import atomic_dir, check_finite
 from stages.common import plain, run_stage
 
 log = logging.getLogger("nanosysid.extract")
@@ -22,6 +22,8 @@ def extract_folder(bags_dir: Path, out_dir: Path, topics: Mapping[str, Mapping[s
             tables = extract_bag(bag, topics)
             (tmp / bag.name).mkdir()
             for stream, df in tables.items():
+                # a motor's NaN is a missed reading, marked so for sync
+                check_finite(df, f"{bag}: stream {stream}", allowed=STREAM_COLUMNS["motors"] if stream == "motors" else ())
                 df.to_parquet(tmp / bag.name / f"{stream}.parquet", index=False)
     log.info("extract: %d bags from %s", len(bags), bags_dir)
     return [b.name for b in bags]

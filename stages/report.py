@@ -34,6 +34,9 @@ def main(cfg: DictConfig) -> None:
     rc = cfg.report
     names = list(cfg.models)
     horizons = [h for h in cfg.eval.table_horizons if h <= int(cfg.eval.horizon)]
+    if len(horizons) < len(cfg.eval.table_horizons):
+        log.warning("report: eval.table_horizons beyond eval.horizon = %d are left out of the tables: %s",
+                    int(cfg.eval.horizon), [h for h in cfg.eval.table_horizons if h > int(cfg.eval.horizon)])
     rows = tables.load_scores(cfg.paths.eval, names)
     costs = tables.load_costs(cfg.paths.eval, names, cfg.paths.get("export"))
     H = next(iter(rows.values())).horizon

@@ -8,7 +8,7 @@ from omegaconf import DictConfig
 from tqdm.auto import tqdm
 
 from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence, sync_flight
-from nanosysid.dataio import atomic_dir, atomic_file, session_of
+from nanosysid.dataio import atomic_dir, atomic_file, check_finite, session_of
 from nanosysid.errors import DataError
 from stages.common import plain, run_stage, write_json
 
@@ -54,6 +54,7 @@ def sync_folder(extract_dir: Path, out_dir: Path, report_dir: Path, cfg: SyncCon
             rep["flight"] = d.name
             rep["session"] = session
             rep["session_flights"] = len(sessions[session])
+            check_finite(synced, f"{d}: synchronised flight")
             synced.to_parquet(tmp / f"{d.name}.parquet", index=False)
             reports.append(rep)
     write_json(Path(report_dir) / "sync.json", reports)

@@ -28,3 +28,21 @@ def venv_env():
 @pytest.fixture
 def rng():
     return np.random.default_rng(1234)
+
+
+@pytest.fixture(scope="session")
+def raw():
+    """The raw record of one short simulated Melon flight (:mod:`bagtools`)."""
+    import bagtools
+
+    return bagtools.simulate_melon()
+
+
+@pytest.fixture(scope="session")
+def bag(raw, tmp_path_factory):
+    """That flight recorded as a ROS 2 bag, as the rig records it."""
+    import bagtools
+
+    path = tmp_path_factory.mktemp("bags") / "melon_20250601_run1"
+    bagtools.record(raw, path)
+    return path

@@ -36,6 +36,7 @@ def test_slurm_executor_carries_the_configs_partition_time_and_memory(tmp_path, 
     from submitit.slurm.slurm import SlurmExecutor
 
     monkeypatch.setattr(SlurmExecutor, "affinity", staticmethod(lambda: 1))  # as if srun were there
+    monkeypatch.setattr("nanosysid.launcher.shutil.which", lambda name: f"/usr/bin/{name}")
     spec = Launcher.from_mapping({**SLURM, "partition": "gpu", "time_min": 90, "mem_gb": 16, "workers": 8,
                                   "folder": str(tmp_path)})
     ex = slurm_executor(spec)

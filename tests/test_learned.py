@@ -7,7 +7,8 @@ import pytest
 import torch
 
 from nanosysid import benchmark, models, so3, synthetic
-from nanosysid.models.learned import LearnedPredictor, build_model, from_tilde, load_checkpoint, save_checkpoint, to_tilde
+from nanosysid.models.learned import (LearnedPredictor, build_model, content_hash, from_tilde, load_checkpoint,
+                                      save_checkpoint, to_tilde)
 from nanosysid.models.physics import PhysicsStep
 from nanosysid.models.training import SysIdModule, train_model, window_tensors
 from nanosysid.vehicle import Vehicle
@@ -138,11 +139,13 @@ def test_bad_checkpoints_are_one_clear_error(tmp_path):
             torch.save(torch.zeros(3), path)
         elif content == "pickle":
             path.write_bytes(pickle.dumps({"format": "x", "obj": functools.partial(print, 1)}))
-            torch.save({"format": "nanosysid-model-2", "callable": functools.partial(print, 1)}, path)
+            torch.save({"format": "nanosysid-model-3", "callable": functools.partial(print, 1)}, path)
         elif content in ("sizes", "nonet"):
             ckpt = torch.load(good, weights_only=True)
             if content == "sizes":
+                # a checkpoint consistent with its own hash whose weights fit another network
                 ckpt["network"] = {"name": "mlp", "options": {"hidden": [64, 64]}}
+                ckpt["sha256"] = content_hash(ckpt["network"], ckpt["physics"], ckpt["state_dict"])
             else:
                 del ckpt["network"]
             torch.save(ckpt, path)

@@ -1,53 +1,28 @@
 """Recordings and the data pipeline: bags, extraction, synchronisation, filtering, bad input."""
 
 import dataclasses
-from pathlib import Path
-
 import re
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 import torch
-from omegaconf import OmegaConf
+from bagtools import CFG, IMU, MOCAP, TOPICS, nth_message, record, rewrite, shift_stamp
 from rosbags.highlevel import AnyReader
-from rosbags.rosbag2 import StoragePlugin, Writer
 
-from nanosysid import sim, so3
-from nanosysid.errors import DataError
-from stages.extract import extract_folder
-from nanosysid.bags.messages import typestore
+from nanosysid import so3
 from nanosysid.bags.extract import extract_bag
 from nanosysid.bags.filtering import FilterConfig, fill_gaps, filter_flight, lowpass
+from nanosysid.bags.messages import typestore
 from nanosysid.bags.recorder import RecorderConfig, record_flight
 from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence, sync_flight
-from nanosysid.sim.simulator import SimConfig, simulate_raw
+from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
+from stages.extract import extract_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 
-TOPICS = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "topics" / "crazyflie.yaml"))
-CFG = SimConfig.from_mapping({
-    "preroll": 0.5, "postroll": 1.0,
-    "trajectories": {"melon": {"duration": 8.0, "circle_time": 6.0, "return_time": 1.5, "ramp_time": 0.15}},
-})
-
-
-@pytest.fixture(scope="module")
-def raw():
-    return simulate_raw([sim.FlightSpec("melon", 1)], cfg=CFG, progress=False)
-
-
-def record(raw, path, **recorder):
-    return record_flight(raw, 0, path, topics=TOPICS, cfg=RecorderConfig(**recorder), noise=CFG.noise,
-                         vehicle=Vehicle())
-
-
-@pytest.fixture(scope="module")
-def bag(raw, tmp_path_factory):
-    path = tmp_path_factory.mktemp("bags") / "melon_20250601_run1"
-    record(raw, path)
-    return path
 
 
 def process(bag_path):
@@ -108,32 +83,6 @@ def test_damaged_but_usable_flight_passes_with_warnings(raw, tmp_path):
 # ---- bad input ------------------------------------------------------------------------------
 
 
-def rewrite(src, dst, change=lambda topic, msg, t: (msg, t), drop_topics=()):
-    """Copy a bag message by message, through ``change(topic, msg, t) -> (msg, t) | None``."""
-    store = typestore()
-    with AnyReader([src], default_typestore=store) as r:
-        writer = Writer(dst, version=9, storage_plugin=StoragePlugin.MCAP)
-        with writer:
-            conns = {c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
-                     for c in r.connections if c.topic not in drop_topics}
-            for i, (c, t, raw) in enumerate(r.messages()):
-                if c.id not in conns:
-                    continue
-                out = change(c.topic, r.deserialize(raw, c.msgtype), t)
-                if out is not None:
-                    writer.write(conns[c.id], out[1], store.serialize_cdr(out[0], c.msgtype))
-    return dst
-
-
-def shift_stamp(msg, dt):
-    st = msg.header.stamp
-    total = st.sec + st.nanosec * 1e-9 + dt
-    new = dataclasses.replace(st, sec=int(np.floor(total)), nanosec=int(round((total - np.floor(total)) * 1e9)) % 10**9)
-    return dataclasses.replace(msg, header=dataclasses.replace(msg.header, stamp=new))
-
-
-IMU = TOPICS["imu"]["topic"]
-MOCAP = TOPICS["mocap"]["topic"]
 
 
 def test_truncated_and_corrupt_bags(bag, tmp_path):
@@ -149,6 +98,11 @@ def test_truncated_and_corrupt_bags(bag, tmp_path):
         else:
             data[len(data) // 3 : len(data) // 3 + 4096] = b"\xff" * 4096
         mcap.write_bytes(bytes(data))
+        with pytest.raises(DataError, match=rf"{kind}/.*\.mcap: CRC-32 [0-9a-f]{{8}}, but the bag's metadata records"):
+            extract_bag(dst, TOPICS)
+        # a bag from elsewhere records no CRC: the reader's own checks still catch the damage
+        meta = dst / "metadata.yaml"
+        meta.write_text(re.sub(r"\n    nanosysid\.crc32\.[^\n]*", "", meta.read_text()).replace("custom_data:\n", "custom_data: null\n"))
         with pytest.raises(DataError, match=rf"{kind}: (cannot read the bag|the bag is damaged or truncated)"):
             extract_bag(dst, TOPICS)
 
@@ -268,20 +222,6 @@ def test_body_frame_velocity_is_rotated_into_the_world(raw, bag, tmp_path):
     assert np.linalg.norm(v_body) == pytest.approx(np.linalg.norm(ref[["vx", "vy", "vz"]].to_numpy()[0]), rel=1e-9)
     got = extract_bag(path, topics)["odom"]
     np.testing.assert_allclose(got[["vx", "vy", "vz"]], ref[["vx", "vy", "vz"]], atol=1e-12)
-
-
-def nth_message(topic_name, n, edit):
-    """A change that applies ``edit(msg) -> msg`` to the n-th message (from 1) of one topic."""
-    count = {"n": 0}
-
-    def change(topic, m, t):
-        if topic == topic_name:
-            count["n"] += 1
-            if count["n"] == n:
-                return edit(m), t
-        return m, t
-
-    return change
 
 
 def test_zero_quaternion_and_motors_never_valid(bag, tmp_path):

@@ -184,11 +184,20 @@ def check_flight(flight: Flight) -> None:
         raise DataError(f"flight {flight.name}: the quaternion (qx..qw) at sample {i} (t = {flight.t[i]:.6g} s) has "
                         f"norm {norm[i]:.4g}; the truth needs unit quaternions (within {QUAT_NORM_TOLERANCE:g})")
     if len(flight) > 1:
-        dt = float(np.median(np.diff(flight.t)))
+        steps = np.diff(flight.t)
+        dt = float(np.median(steps))
         if not abs(dt / SAMPLE_PERIOD - 1) <= RATE_TOLERANCE:
             raise DataError(f"flight {flight.name}: column 't': samples {dt:.6g} s apart ({1 / dt:.4g} Hz); the "
                             f"protocol's horizons are steps of {SAMPLE_PERIOD:g} s ({1 / SAMPLE_PERIOD:g} Hz): "
                             "resample the flight first")
+        # a gap, a repeat or a step back inside the flight: a window across it would be scored
+        # as if its samples were 10 ms apart
+        odd = np.abs(steps / SAMPLE_PERIOD - 1) > 0.5
+        if odd.any():
+            i = int(np.argmax(odd))
+            raise DataError(f"flight {flight.name}: column 't' goes from {flight.t[i]:.6g} to {flight.t[i + 1]:.6g} s "
+                            f"between samples {i} and {i + 1} (a step of {steps[i]:.4g} s, not {SAMPLE_PERIOD:g}): "
+                            "split the flight at the gap or resample it")
 
 
 def check_predictions(pred: np.ndarray, where: str) -> None:

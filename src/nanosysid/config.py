@@ -62,12 +62,25 @@ def apply_overrides(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
 
     if not overrides:
         return cfg
+    for o in overrides:
+        key = o.partition("=")[0]
+        if key.startswith("+"):
+            # a key no stage reads would be carried silently into the run's record
+            raise ConfigError(f"{o}: adds the setting {key[1:]!r}, which no stage reads; the settings are those in "
+                              "params.yaml (change one with key=value)")
     try:
         parsed = OverridesParser.create().parse_overrides(list(overrides))
+    except HydraException as e:
+        first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+        raise ConfigError(f"cannot read the overrides {list(overrides)}: {first} (each is key=value; quote a value "
+                          "with spaces or unusual letters: key='a b')") from None
+    try:
         OmegaConf.set_struct(cfg, True)
         ConfigLoaderImpl._apply_overrides_to_config(parsed, cfg)
     except HydraException as e:
-        raise ConfigError(f"cannot apply overrides {list(overrides)}: {e}") from None
+        first = str(e).strip().splitlines()[0]
+        raise ConfigError(f"cannot apply the overrides {list(overrides)}: {first} (the settings are those in "
+                          "params.yaml)") from None
     OmegaConf.set_struct(cfg, False)
     return cfg
 
@@ -131,6 +144,7 @@ _RULES: list[tuple[str, str]] = [
     ("recording.filter.position", _POSITIVE), ("recording.filter.velocity", _POSITIVE),
     ("recording.filter.acceleration", _POSITIVE), ("recording.filter.motors", _POSITIVE),
     ("recording.filter.quaternion", _POSITIVE), ("recording.filter.max_gap", _NONNEG_COUNT),
+    ("recording.filter.max_hold", _NONNEG_COUNT), ("recording.sync.max_loss", _NONNEG),
     ("sim.runs.*", _NONNEG_COUNT), ("sim.effects.*", _NONNEG), ("models.oracle.effects.*", _NONNEG),
     ("sim.flight.*_rate", _POSITIVE), ("sim.flight.motor_tau", _POSITIVE), ("sim.flight.noise.*", _NONNEG),
     ("sim.recorder.*_rate", _POSITIVE),
@@ -189,11 +203,55 @@ def check_values(cfg: dict, where: str = "params.yaml") -> None:
             raise ConfigError(f"{where}: recording.filter.{band} = {filt[band]} Hz is at or above the Nyquist "
                               f"frequency {nyquist:g} Hz of recording.filter.rate")
     _check_protocol(cfg, where)
+    _check_choices(cfg, where)
     band = ((cfg.get("recording") or {}).get("sync") or {}).get("xcorr_band")
     rate = ((cfg.get("recording") or {}).get("sync") or {}).get("rate", 0)
     if band is not None and (len(band) != 2 or not band[0] < band[1] < rate / 2):
         raise ConfigError(f"{where}: recording.sync.xcorr_band must be two frequencies, low < high < "
                           f"{rate / 2:g} Hz (half recording.sync.rate), got {band!r}")
+
+
+# the benchmark's longest horizon (the paper's protocol: MAE at h = 1..50)
+PROTOCOL_HORIZON = 50
+
+# settings that take one of a few words; the trainer's accelerators are Lightning's
+_CHOICES: list[tuple[str, tuple]] = [
+    ("trainer.accelerator", ("auto", "cpu", "gpu", "cuda", "mps")),
+    ("launcher.kind", ("local", "slurm")),
+    ("launcher.cluster", ("slurm", "local", "debug")),
+    ("recording.topics.odom.velocity_frame", ("world", "body")),
+]
+# a model's optimiser and scheduler are built from ``_target_``: only torch's own classes
+_TARGETS = [("models.*.train.optimizer._target_", "torch.optim"),
+            ("models.*.train.scheduler._target_", "torch.optim.lr_scheduler")]
+
+
+def _check_choices(cfg: dict, where: str) -> None:
+    """Words from a fixed set, the classes an optimiser or scheduler names, the trainer's devices
+    and the report's horizons against the protocol's."""
+    import importlib
+
+    for key, value in _leaves(cfg):
+        for pattern, choices in _CHOICES:
+            if fnmatch.fnmatchcase(key, pattern) and value not in choices:
+                raise ConfigError(f"{where}: {key} must be one of {', '.join(choices)}, got {value!r}")
+        for pattern, module in _TARGETS:
+            if fnmatch.fnmatchcase(key, pattern):
+                mod, _, name = str(value).rpartition(".")
+                if mod != module or not name or not hasattr(importlib.import_module(module), name):
+                    raise ConfigError(f"{where}: {key} must name a class of {module} (e.g. {module}."
+                                      f"{'Adam' if module == 'torch.optim' else 'ReduceLROnPlateau'}), got {value!r}")
+    devices = (cfg.get("trainer") or {}).get("devices", 1)
+    if devices != "auto" and not _fits(devices, _COUNT):
+        raise ConfigError(f"{where}: trainer.devices must be a positive whole number or auto, got {devices!r}")
+    ev = cfg.get("eval") or {}
+    horizon, shown = ev.get("horizon"), ev.get("table_horizons") or []
+    longest = max(horizon, PROTOCOL_HORIZON) if isinstance(horizon, int) else PROTOCOL_HORIZON
+    if any(isinstance(h, int) and h > longest for h in shown):
+        # within the protocol's horizons, those beyond a shortened eval.horizon are left out of the
+        # tables (a quick run), and the tables say so
+        raise ConfigError(f"{where}: eval.table_horizons {shown} go beyond the protocol's {PROTOCOL_HORIZON} steps "
+                          f"and eval.horizon = {horizon}; choose horizons up to {longest}")
 
 
 def _check_protocol(cfg: dict, where: str) -> None:

@@ -35,6 +35,7 @@ __all__ = [
     "parse_flight_name",
     "read_flight_csv",
     "write_flight_csv",
+    "check_finite",
     "read_json_record",
     "json_text",
     "session_of",
@@ -296,12 +297,36 @@ def read_json_record(path: str | os.PathLike, fmt: str, what: str, stage: str) -
     return d
 
 
+def check_finite(frame: pd.DataFrame, where: str, *, allowed: Sequence[str] = ()) -> None:
+    """Refuse a table about to be written with a NaN or infinite value outside the ``allowed``
+    columns (those that mark a missed reading with NaN).
+
+    Raises:
+        DataError: naming the table, the column, the first row and how many values.
+    """
+    from nanosysid.errors import DataError
+
+    for col in frame.columns:
+        if col in allowed or not pd.api.types.is_numeric_dtype(frame[col]) or pd.api.types.is_bool_dtype(frame[col]):
+            continue
+        bad = ~np.isfinite(frame[col].to_numpy(dtype=np.float64))
+        if bad.any():
+            i = int(np.argmax(bad))
+            raise DataError(f"{where}: column {col} holds {int(bad.sum())} value(s) that are not finite (first at row "
+                            f"{i}: {frame[col].iloc[i]}); nothing was written")
+
+
 def write_flight_csv(flight: Flight, path: str | os.PathLike) -> None:
-    """Write a flight in the published schema (atomically; same data, same bytes)."""
+    """Write a flight in the published schema (atomically; same data, same bytes).
+
+    Raises:
+        DataError: a value that is not finite (the flight is not written).
+    """
     df = flight.to_frame()
     missing = [c for c in SCHEMA if c not in df.columns]
     if missing:
         raise ValueError(f"flight {flight.name}: cannot write, no values for {missing}")
+    check_finite(df, f"flight {flight.name} for {path}")
     with atomic_file(path, inputs=[flight.source] if flight.source else ()) as tmp:
         df.to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
 

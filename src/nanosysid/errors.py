@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-__all__ = ["UserError", "DataError", "ConfigError", "PredictionError", "ExportError", "ToolchainError"]
+__all__ = ["UserError", "DataError", "ConfigError", "PredictionError", "ExportError", "ToolchainError", "JobError"]
 
 
 class UserError(ValueError):
@@ -29,3 +29,8 @@ class ExportError(UserError):
 
 class ToolchainError(UserError):
     """A tool the microcontroller stages need is missing."""
+
+
+class JobError(UserError):
+    """A task the cluster ran failed, or the cluster ended it (time, memory); the message names
+    the job and where its log is."""

@@ -223,9 +223,11 @@ def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, p
 
 
 # how far from the vehicle's nominal an identified coefficient may lie: k_F is determined to a
-# per cent even in closed loop (further is a unit mistake); the paper's least squares puts k_M
-# several times low in closed loop, and that estimate is still reported, with its warning
-PLAUSIBLE_FACTOR = {"k_F": 3.0, "k_M / k_F": 10.0}
+# per cent even in closed loop, and a propeller's is known from thrust stands within about
+# 10 %, so 25 % off is a unit or a setting (a motor pole-pair count of 7 for 6 gives +36 %);
+# the paper's least squares puts k_M several times low in closed loop, and that estimate is
+# still reported, with its warning
+PLAUSIBLE_FACTOR = {"k_F": 1.25, "k_M / k_F": 10.0}
 MIN_THRUST_R2 = 0.5  # the thrust must explain most of the vertical force, or the data are not flight
 
 
@@ -233,7 +235,7 @@ def check_plausible(thrust: Fit, yaw: Fit, vehicle: Vehicle) -> None:
     """Refuse coefficients the vehicle cannot have, or that the data do not determine, before they
     are written: k_F, or the yaw torque per thrust k_M / k_F, further than :data:`PLAUSIBLE_FACTOR`
     from the nominal ``vehicle``'s (a unit mistake: rpm for rad/s, gravity left out of the
-    accelerometer), a thrust fit with R² below :data:`MIN_THRUST_R2`, or a 95 % interval that holds zero.
+    accelerometer, a wrong motor pole-pair count), a thrust fit with R² below :data:`MIN_THRUST_R2`, or a 95 % interval that holds zero.
 
     Raises:
         DataError: naming the coefficient, its estimate, interval and R², and what would help.
@@ -248,13 +250,15 @@ def check_plausible(thrust: Fit, yaw: Fit, vehicle: Vehicle) -> None:
         k = PLAUSIBLE_FACTOR[name]
         return not (np.isfinite(value) and nominal / k <= value <= nominal * k)
 
-    if off(thrust.coef, vehicle.k_f, "k_F"):
-        raise DataError(f"{where('k_F', thrust)}: more than {PLAUSIBLE_FACTOR['k_F']:g} times off the vehicle's nominal "
-                        f"{vehicle.k_f:.4g}; check the rotor speeds' unit (rad/s), the accelerometer's (m/s², with "
-                        "gravity) and the mass")
     if not thrust.r2 >= MIN_THRUST_R2:
         raise DataError(f"{where('k_F', thrust)}: the thrust explains less than {MIN_THRUST_R2:g} of the vertical "
-                        "force; check that the accelerometer and the rotor speeds were recorded together")
+                        "force; check that the accelerometer and the rotor speeds were recorded together, and the "
+                        "accelerometer's unit (m/s², with gravity)")
+    if off(thrust.coef, vehicle.k_f, "k_F"):
+        raise DataError(f"{where('k_F', thrust)}: {thrust.coef / vehicle.k_f:.3g} times the vehicle's nominal "
+                        f"{vehicle.k_f:.4g}, outside 1/{PLAUSIBLE_FACTOR['k_F']:g} to {PLAUSIBLE_FACTOR['k_F']:g}; check "
+                        "the rotor speeds' unit (rad/s: the topic map's motors.pole_pairs and erpm_unit), the "
+                        "accelerometer's (m/s², with gravity) and vehicle.mass, or set vehicle.k_f for other propellers")
     arm, nominal_arm = yaw.coef / thrust.coef, vehicle.k_m / vehicle.k_f
     if off(arm, nominal_arm, "k_M / k_F"):
         raise DataError(f"{where('k_M', yaw)}: k_M / k_F = {arm * 1e3:.3g} mm, more than "

@@ -18,12 +18,13 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import shutil
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
-from nanosysid.errors import ConfigError
+from nanosysid.errors import ConfigError, JobError
 
 __all__ = ["Launcher", "KINDS", "map_tasks", "slurm_executor"]
 
@@ -100,6 +101,10 @@ def slurm_executor(spec: Launcher, *, name: str = "nanosysid"):
         import submitit
     except ImportError:  # pragma: no cover - submitit is in requirements.txt
         raise ConfigError("launcher=slurm needs submitit: pip install -c constraints.txt submitit") from None
+    if spec.cluster == "slurm" and shutil.which("sbatch") is None:
+        raise ConfigError("launcher=slurm: no SLURM cluster here (no sbatch on the PATH); run from a login node of "
+                          "the cluster, choose launcher=local, or set launcher.cluster=local to try the path on "
+                          "this machine")
     Path(spec.folder).mkdir(parents=True, exist_ok=True)
     ex = submitit.AutoExecutor(folder=str(Path(spec.folder) / "%j"), cluster=spec.cluster)
     params: dict[str, Any] = {"name": name, "timeout_min": spec.time_min, "mem_gb": spec.mem_gb,
@@ -108,6 +113,20 @@ def slurm_executor(spec: Launcher, *, name: str = "nanosysid"):
         params["slurm_partition"] = spec.partition
     ex.update_parameters(**params)
     return ex
+
+
+def _result(job, spec: Launcher) -> Any:
+    """A cluster job's result; a task that raised a user's mistake raises it here, and a job the
+    cluster failed (killed, out of time or memory) is one line naming the job and its log."""
+    from submitit.core.utils import FailedJobError, UncompletedJobError
+
+    try:
+        return job.result()
+    except (FailedJobError, UncompletedJobError) as e:
+        lines = [line for line in str(e).splitlines() if line.strip()]
+        last = next((line for line in reversed(lines) if "Error" in line), lines[-1] if lines else type(e).__name__)
+        raise JobError(f"launcher=slurm: job {job.job_id} failed ({last.strip()}); its log is in "
+                          f"{Path(spec.folder) / str(job.job_id).split('_')[0]}") from None
 
 
 def map_tasks(fn: Callable[..., Any], tasks: Sequence[tuple], spec: Launcher | None = None, *,
@@ -121,7 +140,7 @@ def map_tasks(fn: Callable[..., Any], tasks: Sequence[tuple], spec: Launcher | N
     pool = None
     if spec.kind == "slurm":
         jobs = slurm_executor(spec, name=name).map_array(_pinned, fns, threads, tasks)
-        results = (job.result() for job in jobs)
+        results = (_result(job, spec) for job in jobs)
     elif spec.processes == 1 or len(tasks) <= 1:
         results = map(_pinned, fns, threads, tasks)
     else:

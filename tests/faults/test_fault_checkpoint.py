@@ -69,3 +69,44 @@ def test_a_diverged_or_empty_training_writes_no_model(tmp_path):
     with pytest.raises(ConfigError, match=r"network 'mlp': options .* no weights; every layer needs a width of at least 1"):
         train_model({"name": "mlp", "options": {"hidden": [0]}}, flights, out, **quick)
     assert not out.exists()
+
+
+def _resaved(checkpoint, tmp_path, edit):
+    """The checkpoint loaded, changed by ``edit(payload)`` and saved again by torch (zip CRCs new)."""
+    import torch
+
+    payload = torch.load(checkpoint, weights_only=True)
+    edit(payload)
+    out = tmp_path / "resaved.pt"
+    torch.save(payload, out)
+    return out
+
+
+def _nudge_weight(p):
+    name = next(k for k in p["state_dict"] if k.endswith("weight"))
+    p["state_dict"][name] = p["state_dict"][name].clone()
+    p["state_dict"][name].view(-1)[0] += 1e-6
+
+
+EDITS = [
+    ("one weight nudged by 1e-6", _nudge_weight, "differ from those the checkpoint was written with"),
+    ("a bias zeroed", lambda p: p["state_dict"].__setitem__(
+        next(k for k in p["state_dict"] if k.endswith("bias")), 0 * next(v for k, v in p["state_dict"].items() if k.endswith("bias"))),
+     "differ from those the checkpoint was written with"),
+    ("the normalisation's scale changed", lambda p: p["state_dict"].__setitem__(
+        next(k for k in p["state_dict"] if "scale" in k or "std" in k),
+        2 * next(v for k, v in p["state_dict"].items() if "scale" in k or "std" in k)),
+     "differ from those the checkpoint was written with"),
+    ("the physics spec edited", lambda p: p.__setitem__("physics", {"vehicle": {}, "dt": 0.01, "substeps": 1,
+                                                                     "angular_dynamics": False}),
+     "differ from those the checkpoint was written with"),
+    ("the content hash removed", lambda p: p.pop("sha256"), "field 'sha256' is missing"),
+]
+
+
+@pytest.mark.parametrize("case,edit,words", EDITS, ids=[e[0] for e in EDITS])
+def test_weights_changed_after_training_are_refused_by_the_content_hash(checkpoint, tmp_path, case, edit, words):
+    bad = _resaved(checkpoint, tmp_path, edit)
+    with pytest.raises(DataError, match="resaved.pt: ") as e:
+        load_checkpoint(bad)
+    assert words in str(e.value), str(e.value)

@@ -44,11 +44,15 @@ def hover(fl):
 
 
 CASES = [
-    ("rotor speeds scaled by 1e-7 (k_F 1e6 times)", scaled_speeds(1e-7), "k_F", "more than 3 times off"),
+    ("rotor speeds scaled by 1e-7 (k_F 1e6 times)", scaled_speeds(1e-7), "k_F", "outside 1/1.25 to 1.25"),
     ("rotor speeds in rpm", scaled_speeds(60 / (2 * np.pi)), "k_F", "check the rotor speeds' unit"),
-    ("rotor speeds in krpm", scaled_speeds(60 / (2 * np.pi) / 1000), "k_F", "more than 3 times off"),
-    ("accelerometer without gravity", accelerometer(lambda az: az - 9.81), "k_F", "more than 3 times off"),
-    ("accelerometer in g", accelerometer(lambda az: az / 9.81), "k_F", "more than 3 times off"),
+    ("rotor speeds in krpm", scaled_speeds(60 / (2 * np.pi) / 1000), "k_F", "outside 1/1.25 to 1.25"),
+    ("accelerometer without gravity", accelerometer(lambda az: az - 9.81), "k_F", "with gravity"),
+    ("accelerometer in g", accelerometer(lambda az: az / 9.81), "k_F", "outside 1/1.25 to 1.25"),
+    # eRPM to rad/s: omega = eRPM / pole pairs * 2 pi / 60, so 7 pole pairs read for 6 scale the speeds by 6/7
+    ("7 motor pole pairs for 6", scaled_speeds(6 / 7), "k_F", "motors.pole_pairs and erpm_unit"),
+    ("5 motor pole pairs for 6", scaled_speeds(6 / 5), "k_F", "motors.pole_pairs and erpm_unit"),
+    ("eRPM read as units of 10 for 100", scaled_speeds(0.1), "k_F", "motors.pole_pairs and erpm_unit"),
     ("accelerometer drowned in noise", accelerometer(lambda az: az + 40 * np.random.default_rng(2).standard_normal(az.shape)),
      "k_F", "explains less than 0.5"),
     ("hover only: no yaw excitation", hover, "k_M", "do not determine"),

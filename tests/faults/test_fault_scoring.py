@@ -49,6 +49,13 @@ def resampled(flight, step):
                                y=flight.y[::step].copy(), extra={})
 
 
+def shifted_time(flight, by, sample=40):
+    """The time stamps from ``sample`` on moved by ``by`` s: a gap, a repeat or a step back."""
+    t = flight.t.copy()
+    t[sample:] += by
+    return dataclasses.replace(flight, t=t)
+
+
 BAD = [
     ("NaN position", lambda f: spoil(f, "y", (0, np.nan)), ["'x'", "sample 17", "finite"]),
     ("inf velocity", lambda f: spoil(f, "y", (4, np.inf)), ["'vy'", "sample 17"]),
@@ -60,6 +67,9 @@ BAD = [
     ("quaternion 5 % long", lambda f: scaled_quaternion(f, 1.05), ["quaternion", "norm 1.05"]),
     ("50 Hz flight", lambda f: resampled(f, 2), ["50 Hz", "'t'"]),
     ("25 Hz flight", lambda f: resampled(f, 4), ["25 Hz"]),
+    ("a 0.5 s gap inside", lambda f: shifted_time(f, 0.5), ["between samples 39 and 40", "step of 0.51 s"]),
+    ("the clock stepping back", lambda f: shifted_time(f, -0.2), ["between samples 39 and 40", "step of -0.19 s"]),
+    ("a repeated time stamp", lambda f: shifted_time(f, -0.01), ["between samples 39 and 40", "step of 0 s"]),
 ]
 
 ENTRY_POINTS = {

@@ -35,6 +35,23 @@ CASES = [
     ("campaign.worlds=0", "campaign.worlds must be a positive whole number"),
     ("sim.runs.melon=-1", "sim.runs.melon must be a whole number >= 0"),
     ("recording.filter.position=60", "recording.filter.position = 60 Hz is at or above the Nyquist"),
+    ("recording.sync.max_loss=-0.1", "recording.sync.max_loss must be a number >= 0"),
+    ("recording.filter.max_hold=abc", "recording.filter.max_hold must be a whole number >= 0"),
+    ("trainer.accelerator=tpu", "trainer.accelerator must be one of auto, cpu, gpu, cuda, mps, got 'tpu'"),
+    ("trainer.devices=0", "trainer.devices must be a positive whole number or auto, got 0"),
+    ("trainer.devices=two", "trainer.devices must be a positive whole number or auto"),
+    ("models.lstm.train.optimizer._target_=torch.optim.Adamm", "models.lstm.train.optimizer._target_ must name a class of torch.optim"),
+    ("models.lstm.train.optimizer._target_=os.remove", "must name a class of torch.optim (e.g. torch.optim.Adam), got 'os.remove'"),
+    ("models.residual.train.scheduler._target_=torch.optim.Adam", "must name a class of torch.optim.lr_scheduler"),
+    ("launcher.kind=cloud", "launcher.kind must be one of local, slurm, got 'cloud'"),
+    ("recording.topics.odom.velocity_frame=sideways", "recording.topics.odom.velocity_frame must be one of world, body"),
+    ("eval.table_horizons=[1,10,80]", "eval.table_horizons [1, 10, 80] go beyond the protocol's 50 steps"),
+    ("eval.table_horizons=[0]", "eval.table_horizons must be a positive whole number"),
+    ("+extra.flag=true", "adds the setting 'extra.flag', which no stage reads"),
+    ("+seeds=1", "adds the setting 'seeds', which no stage reads"),
+    ("eval.horizn=20", "cannot apply the overrides ['eval.horizn=20']: Could not override 'eval.horizn'"),
+    ("out dir=x", "cannot read the overrides ['out dir=x']"),
+    ("eval.table_horizons=[1", "quote a value with spaces or unusual letters"),
 ]
 
 CLASS = "unchecked setting"
@@ -50,3 +67,55 @@ def test_a_bad_setting_is_one_error_naming_it(params, override, words):
 
 def test_the_default_settings_pass(params):
     config.load_params([], path=params)
+
+
+def test_launcher_slurm_without_a_cluster_is_one_line_saying_what_to_do(monkeypatch, tmp_path):
+    from nanosysid.launcher import Launcher, slurm_executor
+
+    monkeypatch.setattr("nanosysid.launcher.shutil.which", lambda name: None)
+    with pytest.raises(ConfigError, match=r"launcher=slurm: no SLURM cluster here \(no sbatch on the PATH\); .* "
+                                          "choose launcher=local"):
+        slurm_executor(Launcher.from_mapping({"kind": "slurm", "folder": str(tmp_path)}))
+
+
+def test_a_failed_cluster_job_is_one_line_naming_the_job_and_its_log(tmp_path):
+    import operator
+
+    from nanosysid.errors import JobError
+    from nanosysid.launcher import Launcher, map_tasks
+
+    spec = Launcher.from_mapping({"kind": "slurm", "cluster": "local", "folder": str(tmp_path / "jobs")})
+    with pytest.raises(JobError, match=r"launcher=slurm: job \d+\S* failed \(ZeroDivisionError: division by zero\); "
+                                       r"its log is in .*jobs"):
+        map_tasks(operator.truediv, [(1, 0)], spec)
+
+
+@pytest.mark.parametrize("override,words", [
+    ("models.lstm.train.optimizer.weight_decay=-1", "Invalid weight_decay value: -1"),
+    ("models.lstm.train.scheduler.factor=2", "Factor should be < 1.0"),
+    ("models.lstm.train.optimizer.weight_decay=abc", "not supported between instances"),
+])
+def test_an_optimiser_the_class_refuses_is_one_error_before_training(params, override, words):
+    from stages.train import optimiser_parts
+
+    cfg = config.load_params([override], path=params)
+    with pytest.raises(ConfigError, match=r"models\.lstm\.train\.optimizer / scheduler: cannot build them") as e:
+        optimiser_parts(cfg.models.lstm.train, "lstm")
+    assert words in str(e.value)
+
+
+@pytest.mark.parametrize("accelerator", ["cuda", "mps"])
+def test_an_accelerator_this_machine_lacks_is_one_error_naming_the_setting(accelerator, tmp_path):
+    import torch
+
+    from nanosysid.models.training import train_model
+    from nanosysid.synthetic import synthetic_flights
+
+    if accelerator == "cuda" and torch.cuda.is_available() or accelerator == "mps" and torch.backends.mps.is_available():
+        pytest.skip(f"this machine has {accelerator}")
+    flights = synthetic_flights([f"square_20250101_run{k}" for k in (1, 2)], 60, seed=3)
+    with pytest.raises(ConfigError, match=rf"train: trainer\.accelerator={accelerator}, trainer\.devices=1: .* on this "
+                                          "machine; set trainer.accelerator=auto"):
+        train_model({"name": "mlp", "options": {"hidden": [8]}}, flights, tmp_path / "m.pt", horizon=5, stride=5,
+                    epochs=1, patience=1, batch_size=16, val_runs=[2], seed=0, progress=False, accelerator=accelerator)
+    assert not (tmp_path / "m.pt").exists()

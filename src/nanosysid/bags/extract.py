@@ -9,17 +9,19 @@ from __future__ import annotations
 
 import logging
 import math
+import zlib
 from pathlib import Path
 from typing import Any, Callable, Mapping
 
 import numpy as np
 import pandas as pd
+import yaml
 from rosbags.highlevel import AnyReader
 
 from nanosysid.errors import ConfigError, DataError
 from nanosysid.bags.messages import typestore
 
-__all__ = ["find_bags", "extract_bag", "check_topics", "STREAM_COLUMNS", "MAX_CLOCK_STEP"]
+__all__ = ["find_bags", "extract_bag", "check_topics", "check_crc", "STREAM_COLUMNS", "MAX_CLOCK_STEP", "CRC_KEY"]
 
 log = logging.getLogger(__name__)
 
@@ -28,6 +30,8 @@ log = logging.getLogger(__name__)
 # the link's base latency, whatever the jitter, so a step of that minimum is a clock jump.
 CLOCK_BLOCK = 5
 MAX_CLOCK_STEP = 2.0  # sample periods
+# the metadata key (``custom_data``) of a storage file's CRC-32, written by the recorder
+CRC_KEY = "nanosysid.crc32."
 
 
 def _pose(m) -> list[float]:
@@ -144,6 +148,7 @@ def extract_bag(bag: Path, topics: Mapping[str, Mapping[str, Any]]) -> dict[str,
     """
     check_topics(topics)
     bag = Path(bag)
+    check_crc(bag)
     try:
         reader = AnyReader([bag], default_typestore=typestore())
         reader.open()
@@ -178,6 +183,31 @@ def extract_bag(bag: Path, topics: Mapping[str, Mapping[str, Any]]) -> dict[str,
     finally:
         reader.close()
     return {s: _table(bag, topics[s], s, rows[s]) for s in topics}
+
+
+def check_crc(bag: Path) -> None:
+    """Compare each storage file of a bag with the CRC-32 its metadata records (bags written by
+    this project's recorder). A bag from elsewhere records none; its MCAP chunk CRCs, where the
+    writer set them, are checked by the reader.
+
+    Raises:
+        DataError: a file whose CRC differs, naming the file and both values.
+    """
+    try:
+        meta = yaml.safe_load((Path(bag) / "metadata.yaml").read_text(encoding="utf-8")) or {}
+        custom = (meta.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError) as e:
+        raise DataError(f"{bag}/metadata.yaml: cannot read the bag's metadata ({type(e).__name__}: {e})") from None
+    for key, recorded in sorted(custom.items()):
+        if not str(key).startswith(CRC_KEY):
+            continue
+        path = Path(bag) / str(key)[len(CRC_KEY):]
+        if not path.is_file():
+            raise DataError(f"{path}: the bag's file is missing (its metadata records a CRC for it)")
+        found = f"{zlib.crc32(path.read_bytes()):08x}"
+        if found != str(recorded):
+            raise DataError(f"{path}: CRC-32 {found}, but the bag's metadata records {recorded} when it was "
+                            "written: the file was damaged or changed since; record it again or restore a copy")
 
 
 def _motors(m, spec: Mapping[str, Any]) -> list[float]:

@@ -10,7 +10,8 @@ attitude turns more than pi away from its first attitude is outside what this ha
 Samples with no measurement of their own (lost packets, dropouts) are filled by linear
 interpolation between the nearest measured samples when the gap is at most ``max_gap``
 samples long (in rotation-vector space for the quaternion); longer gaps keep the nearest
-measurement that synchronisation put there, and are reported.
+measurement that synchronisation put there, and are reported; a gap longer than ``max_hold``
+samples is an error naming the signal and the interval.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from scipy.signal import butter, sosfiltfilt
 
 from nanosysid import so3
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, Flight
+from nanosysid.errors import DataError
 
 __all__ = ["FilterConfig", "filter_flight", "lowpass", "fill_gaps"]
 
@@ -41,6 +43,7 @@ class FilterConfig:
     motors: float = 20.0
     quaternion: float = 12.0  # through the log map
     max_gap: int = 10  # samples; longer gaps are left and reported
+    max_hold: int = 30  # samples; a longer gap is an error (its held value would stand for the signal)
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "FilterConfig":
@@ -121,6 +124,12 @@ def filter_flight(name: str, synced: pd.DataFrame, cfg: FilterConfig) -> tuple[F
     if runs:
         left["orientation"] = runs
     t = synced["t"].to_numpy()
+    for group, runs in left.items():
+        s, n = max(runs, key=lambda r: r[1])
+        if n > cfg.max_hold:
+            raise DataError(f"{name}: {group} has no measurement from {t[s] - t[0]:.2f} to {t[s + n - 1] - t[0]:.2f} s "
+                            f"({n} samples), longer than recording.filter.max_hold = {cfg.max_hold}: its held value "
+                            "would stand for the signal there; the recording lost that stream")
     flight = Flight(
         name=name,
         t=np.round(t - t[0], 10),

@@ -23,16 +23,18 @@ from __future__ import annotations
 
 import math
 import shutil
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
+import yaml
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
 from scipy.spatial.transform import Rotation, Slerp
 
-from nanosysid.bags.extract import rotate
+from nanosysid.bags.extract import CRC_KEY, rotate
 from nanosysid.bags.messages import typestore
 from nanosysid.sim.simulator import NoiseConfig, RawRecord, flight_key, interp_columns, perturb_attitude, velocity_drift
 from nanosysid.vehicle import Vehicle
@@ -268,4 +270,18 @@ def _write_bag(bag_dir: Path, streams: Mapping[str, _Stream], store) -> None:
         items.sort()
         for t_ns, k, j in items:
             writer.write(conns[k], t_ns, store.serialize_cdr(streams[k].msgs[j], streams[k].msgtype))
+    _seal(bag_dir)
+
+
+def _seal(bag_dir: Path) -> None:
+    """Record the CRC-32 of each storage file in the bag's metadata (``custom_data``), which the
+    extract stage verifies: the MCAP writer leaves its own chunk CRCs at zero (unchecked)."""
+    meta_path = bag_dir / "metadata.yaml"
+    meta = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
+    info = meta["rosbag2_bagfile_information"]
+    custom = dict(info.get("custom_data") or {})
+    for name in info["relative_file_paths"]:
+        custom[f"{CRC_KEY}{name}"] = f"{zlib.crc32((bag_dir / name).read_bytes()):08x}"
+    info["custom_data"] = custom
+    meta_path.write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
 

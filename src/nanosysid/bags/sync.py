@@ -51,6 +51,7 @@ class SyncConfig:
     min_samples: int = 51  # a flight needs at least one window (H + 1)
     warn_loss: float = 0.10  # warn above this share of missing samples in a stream
     warn_gap: int = 10  # warn when a stream misses more than this many samples in a row
+    max_loss: float = 0.5  # a stream missing more than this share of the flight is an error
     # the motor lag is read off sharp thrust transients: samples where the band-passed sum
     # Omega^2 changes this many times faster than its robust scale on the session's median
     # flight, and the window (s) either side of each that joins the correlation
@@ -354,6 +355,10 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
     for k, m in masks.items():
         out[f"miss_{k}"] = m
 
+    _check_coverage(name, t - t[0], masks, cfg.max_loss)
+    _check_rotors(name, t - t[0], out, masks)
+    _check_velocity_frame(name, t - t[0], out)
+
     report.update({
         "samples": int(len(t)),
         "t_start_stm": float(t[0]),
@@ -383,6 +388,70 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
     for w in warnings:
         log.warning("%s: %s", name, w)
     return out, report
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each run of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(int), 0]))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def _check_coverage(name: str, t: np.ndarray, masks: Mapping[str, np.ndarray], max_loss: float) -> None:
+    """Refuse a stream that misses more than ``max_loss`` of the flight: held values would stand
+    for most of it."""
+    for stream, miss in masks.items():
+        if miss.mean() > max_loss:
+            a, b = max(_runs(miss), key=lambda r: r[1] - r[0])
+            raise DataError(f"{name}: stream {stream} misses {miss.mean():.0%} of the flight's samples (its longest "
+                            f"gap {t[a]:.2f}..{t[b - 1]:.2f} s), more than recording.sync.max_loss = {max_loss:g}; "
+                            "the recording lost that stream (check the topic and the link)")
+
+
+# a rotor reading below this share of the flight's median rotor speed, on this many measured
+# samples in a row, is stopped: a quadrotor cannot fly with a rotor stopped that long
+STOPPED_SHARE, STOPPED_SAMPLES = 0.1, 3
+
+
+def _check_rotors(name: str, t: np.ndarray, out: pd.DataFrame, masks: Mapping[str, np.ndarray]) -> None:
+    """Refuse rotor readings of (nearly) zero while the vehicle flies."""
+    speeds = out[[f"m{i}_rads" for i in range(1, 5)]].to_numpy()
+    typical = np.median(speeds)
+    for i in range(4):
+        stopped = (speeds[:, i] < STOPPED_SHARE * typical) & ~masks[f"m{i + 1}"]
+        for a, b in _runs(stopped):
+            if b - a >= STOPPED_SAMPLES:
+                raise DataError(f"{name}: motor m{i + 1} reads {speeds[a:b, i].max():.0f} rad/s from {t[a]:.2f} to "
+                                f"{t[b - 1]:.2f} s while the others turn at about {typical:.0f} rad/s: a rotor cannot "
+                                "stop in flight; the telemetry of that motor is wrong (or the flight segment "
+                                "includes the ground)")
+
+
+def _check_velocity_frame(name: str, t: np.ndarray, out: pd.DataFrame) -> None:
+    """Refuse odometry velocities that match the motion capture's only after a rotation by the
+    attitude: the topic map's ``odom.velocity_frame`` says the other frame."""
+    if len(t) < 20:
+        return
+    dt = float(np.median(np.diff(t)))
+    v_mc = np.gradient(out[["x", "y", "z"]].to_numpy(), dt, axis=0)
+    v = out[["vx", "vy", "vz"]].to_numpy()
+    attitude = Rotation.from_quat(out[["qx", "qy", "qz", "qw"]].to_numpy())
+    # the position's derivative is noisy: compare the slow parts (half-second means)
+    k = max(1, int(round(0.5 / dt)))
+    n = len(t) // k * k
+
+    def slow(x):
+        return x[:n].reshape(-1, k, 3).mean(axis=1)
+
+    given = float(np.sqrt(np.mean((slow(v) - slow(v_mc)) ** 2)))
+    # recorded in the body frame but read as world, or the reverse (rotated where it should not be)
+    for label, other in (("body-frame", attitude.apply(v)), ("world-frame", attitude.inv().apply(v))):
+        err = float(np.sqrt(np.mean((slow(other) - slow(v_mc)) ** 2)))
+        apart = float(np.sqrt(np.mean((slow(other) - slow(v)) ** 2)))
+        if apart > 0.05 and err < 0.7 * given:
+            raise DataError(f"{name}: the odometry velocities differ from the motion capture's by {given:.2f} m/s RMS, "
+                            f"but by {err:.2f} m/s read as {label} values: recording.topics.odom.velocity_frame "
+                            "does not match the recording (world: the velocity in the world frame; body: in the "
+                            "vehicle's)")
 
 
 def _longest_run(mask: np.ndarray) -> int:

@@ -357,6 +357,26 @@ def _channels_of(search: _Search, name: str, theta: np.ndarray, delay: float) ->
     return tuple(CHANNELS[c] for c in np.flatnonzero(rms >= 0.2 * rms.max()))
 
 
+# training flights that move less than this (RMS distance from each flight's mean position, m,
+# and RMS angular rate, rad/s) excite no effect of the library: drags need speed, gyroscopic and
+# inertia terms need rates (a speed's RMS would not do: a hover's measured velocity is mostly
+# the estimator's drift)
+MIN_TRAVEL, MIN_RATE = 0.05, 0.1
+
+
+def _check_excitation(flights: Sequence[Flight]) -> None:
+    """Refuse to judge flights that barely move (a hover): every effect's regressor is near zero,
+    so its absence would be read as "nothing found"."""
+    travel = float(np.sqrt(np.mean(np.concatenate(
+        [np.sum((f.y[:, 0:3] - f.y[:, 0:3].mean(axis=0)) ** 2, axis=1) for f in flights]))))
+    rate = float(np.sqrt(np.mean(np.concatenate([np.sum(f.y[:, 10:13] ** 2, axis=1) for f in flights]))))
+    if travel < MIN_TRAVEL and rate < MIN_RATE:
+        raise DataError(f"discover cannot judge: the training flights barely move (RMS distance from their mean "
+                        f"position {travel:.3f} m, RMS angular rate {rate:.3f} rad/s, below {MIN_TRAVEL:g} and "
+                        f"{MIN_RATE:g}), so no effect of the library is excited; fly trajectories that move (square, "
+                        "random, chirp)")
+
+
 def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehicle: Vehicle | None = None,
         alpha: float = 0.01, floor: float = 0.25, share: float = 0.5, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005),
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
@@ -398,11 +418,20 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
                                    f"an odd integer above the order {order}")):
         if not ok:
             raise ConfigError(f"discover.{name}: {value!r}; it must be {need}")
+    _check_excitation(train_flights)
     v = vehicle
     if v is None:
         thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)
         v = dataclasses.replace(Vehicle(), k_f=thrust.coef, k_m=yaw.coef)
     search = _Search(train_flights, v, window, order, block, folds)
+    # the smallest p a one-sided signed-rank test over n blocks gives is 2^-n; with every entry
+    # tested at once (Bonferroni) fewer blocks than this could never make a finding
+    need = int(np.ceil(np.log2(len(LIBRARY) / alpha)))
+    n_blocks = int(search.blocks.max()) + 1
+    if n_blocks < need:
+        raise DataError(f"discover cannot judge: the training flights make {n_blocks} blocks of {block:g} s, and with "
+                        f"{len(LIBRARY)} candidates tested at alpha = {alpha:g} no finding is possible below {need} "
+                        f"blocks (about {need * block:g} s of flight); give longer flights, not a verdict of 'nothing'")
     delays = tuple(float(d) for d in delays)
     total = float(search.grams(0.0).et.sum())
     n_samples = len(search.blocks)

@@ -15,7 +15,9 @@ The network is a component (:mod:`nanosysid.models.components`) injected into th
 
 from __future__ import annotations
 
+import hashlib
 import io
+import json
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +33,7 @@ from nanosysid.vehicle import Vehicle
 __all__ = ["to_tilde", "from_tilde", "SequenceModel", "build_model", "build_network", "save_checkpoint", "load_checkpoint", "LearnedPredictor",
            "FORMAT"]
 
-FORMAT = "nanosysid-model-2"
+FORMAT = "nanosysid-model-3"
 
 
 def to_tilde(y: Tensor) -> Tensor:
@@ -101,6 +103,19 @@ def _physics_spec(physics: PhysicsStep | None) -> dict[str, Any] | None:
             "angular_dynamics": physics.angular_dynamics}
 
 
+def content_hash(network: Any, physics: Any, state_dict: dict[str, Tensor]) -> str:
+    """SHA-256 of what a checkpoint computes with: the network and physics specs and every tensor
+    (name, dtype, shape and bytes, in order). Written into the checkpoint and compared on load,
+    so weights changed after training (a bit flip whose zip CRC was recomputed, an edit by
+    another tool) are caught, not evaluated."""
+    h = hashlib.sha256(json.dumps([network, physics], sort_keys=True, default=str).encode())
+    for name, t in state_dict.items():
+        t = t.detach().cpu().contiguous()
+        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.numpy().tobytes() if t.dtype != torch.bfloat16 else t.view(torch.int16).numpy().tobytes())
+    return h.hexdigest()
+
+
 def save_checkpoint(model: SequenceModel, network: dict[str, Any], path: Path,
                     extra: dict[str, Any] | None = None) -> None:
     """Weights, normalisation, the network (its :mod:`~nanosysid.models.components` key and
@@ -112,8 +127,9 @@ def save_checkpoint(model: SequenceModel, network: dict[str, Any], path: Path,
     """
     from nanosysid.dataio import atomic_file
 
-    payload = {"format": FORMAT, "network": network, "physics": _physics_spec(model.physics),
-               "state_dict": model.state_dict(), "extra": extra or {}}
+    physics, state = _physics_spec(model.physics), model.state_dict()
+    payload = {"format": FORMAT, "network": network, "physics": physics, "state_dict": state,
+               "sha256": content_hash(network, physics, state), "extra": extra or {}}
     # torch names the archive's records after the file it writes to; through a buffer the
     # name is fixed, so the same weights give the same bytes whatever the (temporary) path
     buf = io.BytesIO()
@@ -181,9 +197,13 @@ def load_checkpoint(path: str | Path) -> tuple[SequenceModel, dict[str, Any]]:
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         found = f"format {ckpt.get('format')!r}" if isinstance(ckpt, dict) else f"a bare {type(ckpt).__name__}"
         raise DataError(f"{path}: not a nanosysid model checkpoint (format {FORMAT}); it holds {found}")
-    for key, kind in (("network", dict), ("physics", (dict, type(None))), ("state_dict", dict)):
+    for key, kind in (("network", dict), ("physics", (dict, type(None))), ("state_dict", dict), ("sha256", str)):
         if not isinstance(ckpt.get(key), kind):
             raise DataError(f"{path}: field {key!r} is missing or malformed")
+    found = content_hash(ckpt["network"], ckpt["physics"], ckpt["state_dict"])
+    if found != ckpt["sha256"]:
+        raise DataError(f"{path}: the weights or specs differ from those the checkpoint was written with (SHA-256 "
+                        f"{found[:12]}…, recorded {ckpt['sha256'][:12]}…); train the model again or restore the file")
     net = ckpt["network"]
     try:
         physics = None

@@ -156,11 +156,19 @@ def train_model(
     with torch.no_grad():
         start = float(np.mean([module.loss(b).item() for b in dl_val]))
     best = _KeepBest(start, model)
-    trainer = pl.Trainer(
-        max_epochs=int(epochs), accelerator=accelerator, devices=devices, deterministic=True, logger=logger,
-        callbacks=[stop, best], enable_checkpointing=False, enable_progress_bar=progress,
-        enable_model_summary=False, num_sanity_val_steps=0,
-    )
+    from lightning_fabric.utilities.exceptions import MisconfigurationException
+
+    try:
+        trainer = pl.Trainer(
+            max_epochs=int(epochs), accelerator=accelerator, devices=devices, deterministic=True, logger=logger,
+            callbacks=[stop, best], enable_checkpointing=False, enable_progress_bar=progress,
+            enable_model_summary=False, num_sanity_val_steps=0,
+        )
+    except MisconfigurationException as e:
+        # Lightning's word for an accelerator or a device count this machine does not have
+        first = str(e).split(". ")[0].strip("`")
+        raise ConfigError(f"train: trainer.accelerator={accelerator}, trainer.devices={devices}: {first} on this "
+                          "machine; set trainer.accelerator=auto (or cpu)") from None
     trainer.fit(module, dl_fit, dl_val)
     # a diverged run is no model: its best epoch would silently be the untrained start
     if best.last is not None and not (best.last <= DIVERGED * start):
