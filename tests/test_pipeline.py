@@ -31,7 +31,7 @@ TINY_SIM = [
     "sim.flight.trajectories.melon={duration: 3.0, circle_time: 2.0, return_time: 0.5}",
     "export.mcu.start=10",
     "export.mcu.steps=20",
-    "discover.block=0.5",
+    "discover.block=0.4",
 ] + [f"models.{m}.train.{k}" for m in ("residual", "phys_res", "lstm")
      for k in ("epochs=2", "stride=10", "val_runs=[2]")]
 LEARNED = ("residual", "phys_res", "lstm")
