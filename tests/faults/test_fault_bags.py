@@ -67,17 +67,23 @@ def test_a_bag_file_gone_from_its_folder_is_named(bag, tmp_path):
 
 # ---- streams lost for long stretches: coverage and held values ------------------------------
 
-def lose(topic_name, start, stop):
-    """A change that drops the messages of one topic stamped ``start`` to ``stop`` s after its first."""
+def during(topic_name, start, stop, edit):
+    """A change applying ``edit(msg) -> msg | None`` to the messages of one topic stamped ``start``
+    to ``stop`` s after its first (None drops the message)."""
     first = {}
 
     def change(topic, m, t):
         if topic == topic_name:
             t0 = first.setdefault("t", stamp_of(m))
             if start <= stamp_of(m) - t0 < stop:
-                return None
+                m = edit(m)
+                return None if m is None else (m, t)
         return m, t
     return change
+
+
+def lose(topic_name, start, stop):
+    return during(topic_name, start, stop, lambda m: None)
 
 
 LOSSES = [
@@ -102,17 +108,11 @@ def test_a_stream_lost_for_long_is_an_error_naming_it_and_the_interval(bag, tmp_
 # ---- readings no flying vehicle gives ------------------------------------------------------
 
 def motor_zero(index, start, stop):
-    first = {}
-
-    def change(topic, m, t):
-        if topic == MOTORS:
-            t0 = first.setdefault("t", stamp_of(m))
-            if start <= stamp_of(m) - t0 < stop:
-                erpm = m.erpm.copy()
-                erpm[index] = 0
-                return dataclasses.replace(m, erpm=erpm), t
-        return m, t
-    return change
+    def zero(m):
+        erpm = m.erpm.copy()
+        erpm[index] = 0
+        return dataclasses.replace(m, erpm=erpm)
+    return during(MOTORS, start, stop, zero)
 
 
 @pytest.mark.parametrize("index,start,stop", [(0, 3.0, 3.5), (2, 2.0, 2.1), (3, 0.0, 12.0), (1, 6.0, 6.05)],
