@@ -14,7 +14,7 @@ export PYTHONHASHSEED := 0
 # the numerical code paths every stage pins (src/nanosysid/numerics.py), for every command run here
 PINNED := $(shell PYTHONPATH=src $(PYTHON) -m nanosysid.numerics)
 
-.PHONY: venv test repro params bench clean-venv toolchain
+.PHONY: venv test repro params deps bench clean-venv toolchain
 
 venv: $(STAMP)
 
@@ -45,6 +45,10 @@ test: $(STAMP) toolchain
 # edit to conf/ is never silently ignored by `dvc repro`.
 params: $(STAMP)
 	$(BIN)/python -m nanosysid.config compose
+
+# the code deps of every stage in dvc.yaml, from the import graph (after an import changes)
+deps: $(STAMP)
+	$(BIN)/python -m nanosysid.depgraph write
 
 repro: params toolchain
 	env $(PINNED) $(BIN)/dvc repro

@@ -9,7 +9,7 @@ import time
 from nanosysid import benchmark, discover
 from nanosysid.config import load_params
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
-from nanosysid.models import build_from_options
+from nanosysid.predictors import build_from_options
 from nanosysid.vehicle import Vehicle
 from stages.common import plain
 

@@ -15,7 +15,7 @@ import time
 import numpy as np
 import torch
 
-from nanosysid import benchmark, models, so3, synthetic
+from nanosysid import benchmark, predictors, so3, synthetic
 
 H = 50
 SUBSET = 200  # windows for the loop reference
@@ -41,7 +41,7 @@ def main() -> dict[str, float]:
     torch.set_num_threads(2)
     names = [f"melon_bench_run{k}" for k in (1, 2, 3)]
     flights = synthetic.synthetic_flights(names, 6499, substeps=1, noise=1e-3, seed=0)
-    predict = models.predictor("physics")
+    predict = predictors.predictor("physics")
     n = sum(len(f) - H for f in flights)
 
     benchmark.evaluate(predict, flights[:1], horizon=H)  # warm-up (allocator, kernels)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from nanosysid import benchmark
 from nanosysid.config import load_params
-from nanosysid.models import build_from_options
+from nanosysid.predictors import build_from_options
 from nanosysid.viz.rerun import write_recording
 from stages.common import plain
 

@@ -12,7 +12,7 @@ from nanosysid.dataio import atomic_dir
 from nanosysid.discover.model import save_discovered
 from nanosysid.effects import entry
 from nanosysid.identify import identified_vehicle
-from nanosysid.models import build_from_options
+from nanosysid.predictors import build_from_options
 from nanosysid.report.discovery import write_report
 from nanosysid.sim.world import DEFAULT_WORLD, DEPENDS_ON
 from stages.common import plain, run_stage, vehicle_of

@@ -9,7 +9,7 @@ from omegaconf import DictConfig
 
 from nanosysid import benchmark
 from nanosysid.dataio import atomic_dir
-from nanosysid.models import build_from_options, step_cost
+from nanosysid.predictors import build_from_options, step_cost
 from nanosysid.report.tables import results_table_md
 from stages.common import model_options, run_stage
 

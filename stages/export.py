@@ -12,7 +12,7 @@ from nanosysid import benchmark
 from nanosysid.errors import ExportError
 from nanosysid.export.steps import Exportable, check_inputs, export_onnx, onnx_outputs
 from nanosysid.dataio import atomic_dir, json_text
-from nanosysid.models import build_from_options, exportable
+from nanosysid.predictors import build_from_options, exportable
 from stages.common import model_options, run_stage
 
 log = logging.getLogger("nanosysid.export")

@@ -8,9 +8,11 @@ import pandas as pd
 import torch
 from omegaconf import DictConfig
 
-from nanosysid import benchmark, models, so3
-from nanosysid.dataio import atomic_file, read_flight_csv
+from nanosysid import benchmark, so3
+from nanosysid.dataio import SAMPLE_PERIOD, atomic_file, read_flight_csv
 from nanosysid.errors import DataError
+from nanosysid.models.physics import PhysicsStep
+from nanosysid.rollout import StepPredictor
 from nanosysid.vehicle import Vehicle
 from stages.common import run_stage, vehicle_of, write_json
 
@@ -71,7 +73,8 @@ def quality_report(
         })
     if not rows:
         raise DataError(f"{flights_dir}: no processed flights")
-    predict = models.predictor("physics", vehicle=vehicle)  # the nominal model, as the paper defines it
+    # the nominal model, as the paper defines it (the physics step alone: quality reads no other kind)
+    predict = StepPredictor(PhysicsStep(vehicle, dt=SAMPLE_PERIOD), name="physics")
     test_proc = [f for n, f in processed.items() if f.trajectory in test_trajectories]
     test_direct = [read_flight_csv(f) for f in sorted(Path(direct_dir).rglob("*.csv"))]
     test_direct = [f for f in test_direct if f.trajectory in test_trajectories]

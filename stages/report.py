@@ -13,7 +13,7 @@ from nanosysid.report import tables
 from nanosysid.sim.stats import PAPER_STATS, STAT_LABELS, trajectory_stats
 from nanosysid.viz import benchmark as figures
 from nanosysid.viz.signals import ahead
-from nanosysid.models import build_from_options
+from nanosysid.predictors import build_from_options
 from stages.common import model_options, pick_flight, run_stage
 
 log = logging.getLogger("nanosysid.report")

@@ -9,7 +9,7 @@ from omegaconf import DictConfig
 from nanosysid import benchmark
 from nanosysid.dataio import atomic_dir
 from nanosysid.viz.rerun import write_recording
-from nanosysid.models import build_from_options
+from nanosysid.predictors import build_from_options
 from stages.common import model_options, run_stage
 
 log = logging.getLogger("nanosysid.visualize")

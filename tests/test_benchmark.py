@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, models, so3, synthetic
+from nanosysid import benchmark, predictors, so3, synthetic
 from nanosysid.dataio import Flight
 from nanosysid.errors import ConfigError, PredictionError
 
@@ -82,7 +82,7 @@ def test_evaluate_averages_flights_and_keeps_each():
 
 def test_evaluate_batches_give_the_same_answer_and_torch_output_is_accepted():
     flights = synthetic.synthetic_flights(["melon_s_run1"], 300, seed=3)
-    phys = models.predictor("physics")
+    phys = predictors.predictor("physics")
     a = benchmark.evaluate(phys, flights, horizon=20, batch_size=7)
     b = benchmark.evaluate(phys, flights, horizon=20, batch_size=10_000)
     for k in a.mae:
@@ -98,9 +98,9 @@ def test_predictor_with_wrong_shape_is_rejected():
 
 def test_builtin_models_on_flights_of_the_nominal_dynamics():
     flights = synthetic.synthetic_flights(["melon_s_run1", "melon_s_run2"], 400, substeps=1, seed=1)
-    naive = benchmark.evaluate(models.predictor("naive"), flights)
-    phys = benchmark.evaluate(models.predictor("physics"), flights)
-    full = benchmark.evaluate(models.predictor("physics_full"), flights)
+    naive = benchmark.evaluate(predictors.predictor("naive"), flights)
+    phys = benchmark.evaluate(predictors.predictor("physics"), flights)
+    full = benchmark.evaluate(predictors.predictor("physics_full"), flights)
     # same integrator and parameters as the data: exact up to rounding
     assert all(v < 1e-9 for v in full.simerr.values())
     # dw/dt = 0 is exact at h = 1 only in the kinematic part, and far better than naive
@@ -111,12 +111,12 @@ def test_builtin_models_on_flights_of_the_nominal_dynamics():
 
 def test_model_by_unknown_name():
     with pytest.raises(ConfigError, match="unknown model kind 'nope'"):
-        models.predictor("nope")
+        predictors.predictor("nope")
 
 
 def test_scores_round_trip_through_dict():
     flights = synthetic.synthetic_flights(["melon_s_run1"], 120, seed=2)
-    s = benchmark.evaluate(models.predictor("physics"), flights, horizon=10)
+    s = benchmark.evaluate(predictors.predictor("physics"), flights, horizon=10)
     back = benchmark.Scores.from_dict(s.to_dict())
     assert back.simerr == s.simerr and list(back.per_flight) == ["melon_s_run1"]
 
@@ -153,7 +153,7 @@ def test_unscorable_predictions_are_refused(change, problem):
 def test_protocol_settings_must_be_whole_numbers_of_at_least_one(key, value):
     flight = still_flight("melon_a_run1", 60)
     with pytest.raises(ConfigError, match=f"{key} must be a whole number >= 1, got {re.escape(repr(value))}"):
-        benchmark.evaluate(models.predictor("naive"), [flight], **{key: value})
+        benchmark.evaluate(predictors.predictor("naive"), [flight], **{key: value})
 
 
 def test_a_predictor_cannot_change_the_flight_it_is_scored_on():

@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from nanosysid import config, synthetic
-from nanosysid.models import KINDS, build_from_options
+from nanosysid.predictors import KINDS, build_from_options
 from nanosysid.models.learned import build_model, save_checkpoint
 from nanosysid.vehicle import Vehicle
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from nanosysid import identify, models, synthetic
+from nanosysid import identify, predictors, synthetic
 from nanosysid.dataio import Flight
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
@@ -40,7 +40,7 @@ def test_physics_models_use_the_identified_coefficients(tmp_path):
     identify.save_params(path, fit, dataclasses.replace(fit, coef=8.0e-11), [])
     v = identify.identified_vehicle(Vehicle(), path)
     assert v.k_f == 4.0e-8 and v.k_m == 8.0e-11 and v.mass == Vehicle().mass
-    step = models.predictor("physics_full", identified=str(path)).step
+    step = predictors.predictor("physics_full", identified=str(path)).step
     assert step.vehicle.k_f == 4.0e-8
 
 

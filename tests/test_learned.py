@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, models, so3, synthetic
+from nanosysid import benchmark, predictors, so3, synthetic
 from nanosysid.models.learned import (LearnedPredictor, build_model, content_hash, from_tilde, load_checkpoint,
                                       save_checkpoint, to_tilde)
 from nanosysid.models.physics import PhysicsStep
@@ -65,7 +65,7 @@ def test_phys_res_starts_as_the_physics_model(flights):
     model.set_statistics(ds.tensors[0], ds.tensors[1].reshape(-1, 4), ds.tensors[0][1:] - ds.tensors[0][:-1])
     y0, u, _ = benchmark.windows(flights[0], 10)
     ours = LearnedPredictor(model)(y0[:50], u[:50])
-    phys = models.predictor("physics")(y0[:50], u[:50])
+    phys = predictors.predictor("physics")(y0[:50], u[:50])
     assert np.allclose(ours, phys, atol=1e-9)
 
 
@@ -107,7 +107,7 @@ def test_checkpoint_round_trip_is_weights_only(tmp_path):
     back, _ = load_checkpoint(tmp_path / "m.pt")
     for (k, a), b in zip(model.state_dict().items(), back.state_dict().values()):
         assert torch.equal(a, b), k
-    assert isinstance(models.predictor(str(tmp_path / "m.pt")), LearnedPredictor)
+    assert isinstance(predictors.predictor(str(tmp_path / "m.pt")), LearnedPredictor)
 
 
 def test_no_validation_flights_is_one_clear_error(flights, tmp_path):
@@ -158,7 +158,7 @@ def test_bad_checkpoints_are_one_clear_error(tmp_path):
     lstm = tmp_path / "lstm.pt"
     save_checkpoint(make("lstm"), NETWORKS["lstm"], lstm)
     with pytest.raises(ConfigError, match=r"lstm\.pt: holds a lstm network, but the model's config names mlp"):
-        models.build_from_options({"kind": "learned", "checkpoint": str(lstm), "network": NETWORKS["residual"]})
+        predictors.build_from_options({"kind": "learned", "checkpoint": str(lstm), "network": NETWORKS["residual"]})
     with pytest.raises(ConfigError, match=r"good\.pt: the network has no physics base, but the model's config gives one"):
-        models.build_from_options({"kind": "learned", "checkpoint": str(good), "network": NETWORKS["phys_res"],
+        predictors.build_from_options({"kind": "learned", "checkpoint": str(good), "network": NETWORKS["phys_res"],
                                    "physics": {"dt": 0.01}})

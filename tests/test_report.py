@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, models, so3, synthetic
+from nanosysid import benchmark, predictors, so3, synthetic
 from nanosysid.report import tables as report
 from nanosysid.viz.signals import ahead, euler_deg
 
@@ -59,13 +59,13 @@ def test_mae_csv_is_one_row_per_model_and_horizon():
 def test_ahead_places_each_prediction_h_samples_after_its_start():
     flight = synthetic.synthetic_flights(["melon_s_run1"], 80, seed=1)[0]
     H = 10
-    pred = benchmark.predictions(models.predictor("physics"), flight, horizon=H)
+    pred = benchmark.predictions(predictors.predictor("physics"), flight, horizon=H)
     assert pred.shape == (70, H, 13)
     a = ahead(pred, H, len(flight))
     assert np.isnan(a[:H]).all() and np.isnan(a[H + 70:]).all()
     assert np.array_equal(a[H + 5], pred[5, H - 1])
     # a subset of starts is the same rollout as the full set
-    sub = benchmark.predictions(models.predictor("physics"), flight, horizon=H, starts=np.array([5, 30]))
+    sub = benchmark.predictions(predictors.predictor("physics"), flight, horizon=H, starts=np.array([5, 30]))
     assert np.allclose(sub, pred[[5, 30]])
     b = ahead(sub, H, len(flight), starts=np.array([5, 30]))
     assert np.allclose(b[[H + 5, H + 30]], a[[H + 5, H + 30]]) and np.isnan(b).all(axis=1).sum() == len(flight) - 2

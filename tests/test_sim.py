@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, models, sim, so3
+from nanosysid import benchmark, predictors, sim, so3
 from nanosysid.dataio import write_flight_csv
 from nanosysid.errors import PredictionError
 from nanosysid.sim import world as fx
@@ -226,8 +226,8 @@ def test_inertia_offset_is_the_true_body():
     f = sim.simulate_flight("melon", 1, effects={"inertia_offset": 1.0}, noise=False, cfg=SHORT)
     none = sim.simulate_flight("melon", 1, effects={}, noise=False, cfg=SHORT)
     J = tuple(j * k for j, k in zip(V.inertia, (1.15, 1.15, 1.25)))
-    true_body = models.predictor("physics_full", vehicle=Vehicle(inertia=J))
-    nominal = models.predictor("physics_full")
+    true_body = predictors.predictor("physics_full", vehicle=Vehicle(inertia=J))
+    nominal = predictors.predictor("physics_full")
     err = benchmark.evaluate(true_body, [f]).simerr["w"]
     assert err < 1.5 * benchmark.evaluate(nominal, [none]).simerr["w"]
     assert benchmark.evaluate(nominal, [f]).simerr["w"] > 3 * err
@@ -242,7 +242,7 @@ def test_telemetry_delay_shifts_recorded_rotor_speeds():
 
 def test_every_effect_is_visible_to_the_nominal_model():
     """Noise-free: physics_full is near perfect with no effect, and each effect raises its error."""
-    full, naive = models.predictor("physics_full"), models.predictor("naive")
+    full, naive = predictors.predictor("physics_full"), predictors.predictor("naive")
     worlds = [{}] + [{e: 1.0} for e in sim.EFFECTS]
     errs = []
     for w in worlds:
@@ -332,7 +332,7 @@ def test_a_constant_extra_force_moves_the_flight_as_newton_says():
     for name, wrench in (("pushed", push), ("free", None)):
         f = sim.simulate_flight("melon", 1, effects={}, noise=False, cfg=SHORT, extra_wrench=wrench)
         y0, u, y = (a[f.t[:len(f) - 10] >= 1.0] for a in benchmark.windows(f, 10))
-        err[name] = y[:, -1, :3] - models.predictor("physics_full")(y0, u)[:, -1, :3]
+        err[name] = y[:, -1, :3] - predictors.predictor("physics_full")(y0, u)[:, -1, :3]
         if wrench is not None:
             R = so3.quat_to_rotmat(torch.from_numpy(np.ascontiguousarray(y0[:, 6:10]))).numpy()
     expected = (R @ force.numpy()) / V.mass * 0.1**2 / 2
@@ -356,7 +356,7 @@ def test_the_oracle_knows_turbulence_and_a_users_wrench():
     world = {"turbulence": 1.0}
     f = sim.simulate_flight("melon", 1, effects=world, seed=4, noise=False, cfg=SHORT, extra_wrench=push)
     oracle = benchmark.evaluate(sim.oracle(world, seed=4, extra_wrench=push), [f])
-    full = benchmark.evaluate(models.predictor("physics_full"), [f])
+    full = benchmark.evaluate(predictors.predictor("physics_full"), [f])
     for k in "pvRw":
         assert oracle.simerr[k] < 0.02 * full.simerr[k]
     # another seed is another realisation of the turbulence: the oracle no longer knows it
@@ -370,8 +370,8 @@ def test_oracle_is_the_physical_limit():
     world = {"rotor_drag": 1.0, "com_offset": 1.0, "motor_asymmetry": 1.0}
     f = sim.simulate_flight("melon", 1, effects=world, noise=False, cfg=SHORT)
     oracle = benchmark.evaluate(sim.oracle(world), [f])
-    phys = benchmark.evaluate(models.predictor("physics"), [f])
-    full = benchmark.evaluate(models.predictor("physics_full"), [f])
+    phys = benchmark.evaluate(predictors.predictor("physics"), [f])
+    full = benchmark.evaluate(predictors.predictor("physics_full"), [f])
     for k in "pvRw":
         assert oracle.simerr[k] < 0.2 * min(phys.simerr[k], full.simerr[k])
-    assert models.predictor("oracle", effects=world)(f.y[:2], f.u[None, :5].repeat(2, 0)).shape == (2, 5, 13)
+    assert predictors.predictor("oracle", effects=world)(f.y[:2], f.u[None, :5].repeat(2, 0)).shape == (2, 5, 13)

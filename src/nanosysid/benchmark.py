@@ -9,9 +9,9 @@ s from the flight's first sample, and ``flight=`` the flight's name.
 
 Example::
 
-    from nanosysid import benchmark, models
+    from nanosysid import benchmark, predictors
     bench = benchmark.load("path/to/data")        # train/ and test/ flight CSVs
-    scores = benchmark.evaluate(models.predictor("physics"), bench.test, horizon=50)
+    scores = benchmark.evaluate(predictors.predictor("physics"), bench.test, horizon=50)
     scores.mae["p"][9], scores.simerr["v"]
 """
 
@@ -25,8 +25,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from nanosysid import metrics
-from nanosysid.dataio import (OUTPUT_COLUMNS, Flight, atomic_file, check_distinct, flight_files, parse_flight_name,
-                              read_flight_csv)
+from nanosysid.dataio import (INPUT_COLUMNS, OUTPUT_COLUMNS, SAMPLE_PERIOD, Flight, atomic_file, check_distinct,
+                              flight_files, parse_flight_name, read_flight_csv)
 from nanosysid.errors import ConfigError, DataError, PredictionError
 
 __all__ = ["Benchmark", "Flight", "Scores", "evaluate", "load", "predictions", "score", "windows", "check_flight", "check_predictions",
@@ -169,8 +169,6 @@ def check_flight(flight: Flight) -> None:
     quaternions off unit norm (a zero quaternion would score every rotation as exact), samples
     not at the protocol's rate (h steps would not be h x 10 ms). The message names the flight,
     the column and the sample: bad data is not the predictor's fault."""
-    from nanosysid.dataio import INPUT_COLUMNS, SAMPLE_PERIOD
-
     for arr, cols in ((flight.u, INPUT_COLUMNS), (flight.y, OUTPUT_COLUMNS)):
         bad = ~np.isfinite(arr)
         if bad.any():

@@ -304,8 +304,6 @@ def check_finite(frame: pd.DataFrame, where: str, *, allowed: Sequence[str] = ()
     Raises:
         DataError: naming the table, the column, the first row and how many values.
     """
-    from nanosysid.errors import DataError
-
     for col in frame.columns:
         if col in allowed or not pd.api.types.is_numeric_dtype(frame[col]) or pd.api.types.is_bool_dtype(frame[col]):
             continue

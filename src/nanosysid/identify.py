@@ -240,8 +240,6 @@ def check_plausible(thrust: Fit, yaw: Fit, vehicle: Vehicle) -> None:
     Raises:
         DataError: naming the coefficient, its estimate, interval and R², and what would help.
     """
-    from nanosysid.errors import DataError
-
     def where(name: str, fit: Fit) -> str:
         ci = "" if fit.ci95 is None else f", 95 % interval {fit.ci95[0]:.4g} to {fit.ci95[1]:.4g}"
         return f"identify: {name} = {fit.coef:.4g}{ci}, R² {fit.r2:.3f} ({fit.flights} flight(s), {fit.estimator})"

@@ -17,15 +17,25 @@ Example::
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
 import numpy as np
+import pandas as pd
 import torch
 
-from nanosysid import so3
+from nanosysid import benchmark, discover, identify, sim, so3
+from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence
+from nanosysid.effects import LIBRARY
+from nanosysid.errors import PredictionError
+from nanosysid.launcher import map_tasks
+from nanosysid.sim import EFFECTS, SimConfig
+from nanosysid.sim import world as nature
+from nanosysid.sim.simulator import collective_thrust_coefficient
+from nanosysid.vehicle import Vehicle
 
 __all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "World", "draw", "simulate", "judge", "check", "summarize",
            "identification", "summarize_identification", "library_truth", "coefficient_coverage",
@@ -108,8 +118,6 @@ class World:
 def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3) -> list[World]:
     """``n`` worlds drawn from ``seed``: 0 to ``max_effects`` simulator effects each, strengths
     log-uniform in 0.3..3; a share ``user_share`` also get a user effect outside the library."""
-    from nanosysid.sim import EFFECTS
-
     rng = np.random.default_rng(seed)
     names = sorted(EFFECTS)
     out = []
@@ -127,8 +135,6 @@ def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3
 
 def short_flights_config(duration: float = 20.0):
     """The simulator's config with every trajectory ``duration`` seconds long."""
-    from nanosysid.sim import SimConfig
-
     default = SimConfig().trajectories
     return SimConfig.from_mapping({"trajectories": {
         "square": {},
@@ -145,8 +151,6 @@ def simulate(worlds: Sequence[World], cfg=None, *, progress: bool = False) -> di
     without each of its simulator effects (same seed: the same noise and realisations), all
     worlds in one batch. A flight is named ``<trajectory>_w<world>_run1`` (the oracle finds its
     realisation by it). Returns world index -> (flights, effect -> test flight without it)."""
-    from nanosysid import sim
-
     cfg = cfg or short_flights_config()
     specs, keys = [], []
     for w in worlds:
@@ -180,9 +184,6 @@ def _relative_gap(before, after, oracle) -> float | None:
 def judge(world: World, flights: Sequence, without: dict | None = None, *, horizon: int = 50) -> dict[str, Any]:
     """Discovery on one world's flights, and its verdicts scored against the world; ``without``
     (effect -> the test flight flown without it) gives each effect's impact on the nominal SimErr."""
-    from nanosysid import benchmark, discover, sim
-    from nanosysid.errors import PredictionError
-
     train = [f for f in flights if f.trajectory in TRAIN]
     test = [f for f in flights if f.trajectory == TEST]
     ident = identification(world, flights)
@@ -230,10 +231,6 @@ def library_truth(effects: dict[str, float]) -> dict[str, dict[str, float]]:
     one (the judge's translation, written from the world's constants): library entry ->
     coefficient name -> value. The drags' entries have other forms than the world's rotor and
     airframe drag and are left out."""
-    from nanosysid.effects import LIBRARY
-    from nanosysid.sim import world as nature
-    from nanosysid.vehicle import Vehicle
-
     J = Vehicle().inertia
     values = {
         "com_offset": ("cg_offset", lambda s: [s * nature.COM_OFFSET[0], s * nature.COM_OFFSET[1]]),
@@ -272,15 +269,6 @@ def identification(world: World, flights: Sequence) -> dict[str, Any]:
     the calibration flight; the paper's least squares on the training flights beside). Errors
     relative to the truth, and whether each 95 % interval covers it; k_M counts as identifiable
     where the world's inertia is the nominal one (the gyro's torque is read with it)."""
-    import dataclasses
-
-    import pandas as pd
-
-    from nanosysid import identify, sim
-    from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence
-    from nanosysid.sim.simulator import collective_thrust_coefficient
-    from nanosysid.vehicle import Vehicle
-
     cfg = SyncConfig()
     evidence = [motor_lag_evidence(f.name, pd.DataFrame({"t_src": f.t, "az": f.extra["az_body"]}),
                                    pd.DataFrame({"t_src": f.t, **{f"m{i + 1}": f.u[:, i] for i in range(4)}}), cfg)
@@ -322,8 +310,6 @@ def check(worlds: Sequence[World], *, launcher=None, cfg=None, horizon: int = 50
     """Simulate and judge every world, ``chunk`` worlds to a task of ``launcher``
     (:class:`nanosysid.launcher.Launcher`; None: one process here). The rows come back in the
     worlds' order, the same whatever the launcher and its number of workers."""
-    from nanosysid.launcher import map_tasks
-
     cfg = cfg or short_flights_config()
     tasks = [(list(worlds[s:s + chunk]), cfg, horizon) for s in range(0, len(worlds), chunk)]
     parts = map_tasks(_check_chunk, tasks, launcher, progress=progress, desc=f"worlds ({chunk} a task)",

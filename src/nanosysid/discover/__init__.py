@@ -71,10 +71,12 @@ from scipy.stats import norm, t as student_t, wilcoxon
 from nanosysid import benchmark
 from nanosysid.dataio import Flight
 from nanosysid.discover import generic
+from nanosysid.discover.analysis import disagreement
 from nanosysid.discover.fit import COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench, noise_floor
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, refitted_vehicle, split_coefficients
 from nanosysid.errors import ConfigError, DataError, PredictionError
+from nanosysid.identify import identify
 from nanosysid.metrics import QUANTITIES
 from nanosysid.vehicle import Vehicle
 
@@ -403,8 +405,6 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         analysis: Also compute where the models disagree (per channel, regime, band, rollout).
         sindy: Also fit and score the plain SINDy discrepancy model (generic terms only, no names).
     """
-    from nanosysid.identify import identify
-
     if len(train_flights) < 1:
         raise DataError("discover needs at least 1 training flight")
     # settings that would make every test meaningless (one fold holds nothing out; a block of
@@ -614,8 +614,6 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     if sindy:
         result.sindy = _sindy_baseline(search, v, test_flights, horizon, batch_size)
     if analysis:
-        from nanosysid.discover.analysis import disagreement
-
         result.analysis = disagreement(result, search, names, theta_measured, delay, test_flights,
                                        generic_fits=generic_fits, horizon=horizon, batch_size=batch_size)
     return result

@@ -25,6 +25,7 @@ import torch
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from nanosysid import effects
+from nanosysid.dynamics import rotor_wrench
 from nanosysid.dataio import Flight
 from nanosysid.identify import body_torque
 from nanosysid.rollout import advance_inputs
@@ -49,8 +50,6 @@ def measured_wrench(flight: Flight, vehicle: Vehicle, window: int, order: int) -
 
 def nominal_wrench(u: np.ndarray, vehicle: Vehicle) -> np.ndarray:
     """The quadratic rotor model's ``[0, 0, T; tau]``, ``(T, 6)``."""
-    from nanosysid.dynamics import rotor_wrench
-
     thrust, tau = rotor_wrench(torch.from_numpy(u), k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm)
     w = np.zeros((len(u), 6))
     w[:, 2] = thrust.numpy()

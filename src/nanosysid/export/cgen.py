@@ -12,7 +12,9 @@ import re
 from collections import Counter
 from typing import Sequence, Union
 
+from nanosysid import effects as library
 from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, integrate, signed_sum
+from nanosysid.vehicle import Vehicle
 
 __all__ = ["Tracer", "Sym", "Vector", "flit", "sqrt", "physics_step_c", "physics_step_scalar", "Num"]
 
@@ -130,9 +132,6 @@ def _dynamics(x: Sequence[Num], om: Sequence[Num], s: Sequence[Num], om_dot: Seq
     ``om``, their squares ``s`` (computed once per step, not per RK4 stage) and rates
     ``om_dot``; ``effects`` adds the named effects' wrench (``(name, theta)`` pairs of
     :mod:`nanosysid.effects`)."""
-    from nanosysid import effects as library
-    from nanosysid.vehicle import Vehicle
-
     v, qv, qw, w = x[3:6], x[6:9], x[9], x[10:13]
     thrust = k_f * (s[0] + s[1] + s[2] + s[3])
     f_b = [0.0, 0.0, thrust]

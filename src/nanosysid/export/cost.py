@@ -7,14 +7,16 @@ from typing import Any
 import torch
 from torch.utils.flop_counter import FlopCounterMode
 
+from nanosysid.export.csource import TILDE_FLOPS, physics_source
+from nanosysid.export.steps import augmented_step
+from nanosysid.models.learned import from_tilde, to_tilde
+
 __all__ = ["physics_flops", "no_cost", "physics_cost", "learned_cost", "augmented_cost"]
 
 
 def physics_flops(step) -> int:
     """Exact operation count of a :class:`~nanosysid.models.physics.PhysicsStep`, from its
     generated C (:mod:`nanosysid.export.cgen`)."""
-    from nanosysid.export.csource import physics_source
-
     return physics_source("physics", step.vehicle, dt=step.dt, substeps=step.substeps,
                           angular_dynamics=step.angular_dynamics).flops
 
@@ -28,9 +30,6 @@ def _torch_flops(fn, *args) -> int:
 def learned_cost(predict) -> dict[str, Any]:
     """Trainable parameters, and the FLOPs of one recurrent step as torch's FLOP counter
     reports them (matrix products only, a multiply-add counted as 2)."""
-    from nanosysid.export.csource import TILDE_FLOPS
-    from nanosysid.models.learned import from_tilde, to_tilde
-
     model = predict.model
 
     params = sum(p.numel() for p in model.parameters() if p.requires_grad)
@@ -62,7 +61,5 @@ def physics_cost(predict) -> dict[str, Any]:
 
 def augmented_cost(predict) -> dict[str, Any]:
     """The discovered model: as :func:`physics_cost`, with its effects in the C step."""
-    from nanosysid.export.steps import augmented_step
-
     return {"params": None, "flops": augmented_step(predict, "discovered").c.flops,
             "flops_method": "exact count of the generated C"}

@@ -18,7 +18,9 @@ from typing import Any, Sequence
 import numpy as np
 import torch
 
+from nanosysid.errors import ExportError
 from nanosysid.export.cgen import flit, physics_step_c
+from nanosysid.models.components import network_name
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["CModel", "physics_source", "learned_source", "HEADER"]
@@ -291,9 +293,6 @@ NETWORK_SOURCES = {"mlp": _feedforward_source, "lstm": _recurrent_source}
 
 def learned_source(name: str, model) -> CModel:
     """The step of a :class:`~nanosysid.models.learned.SequenceModel` with its weights."""
-    from nanosysid.errors import ExportError
-    from nanosysid.models.components import network_name
-
     net = network_name(model.network)
     if net not in NETWORK_SOURCES:
         raise ExportError(f"model {name!r}: no C generator for its network {net!r} "

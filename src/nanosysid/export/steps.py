@@ -10,7 +10,10 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
+from nanosysid.discover.model import AugmentedStep, augmented_inputs
 from nanosysid.export.csource import CModel, learned_source, physics_source
+from nanosysid.models.learned import to_tilde
+from nanosysid.models.physics import PhysicsStep
 
 __all__ = ["Exportable", "physics_step", "augmented_step", "learned_step", "export_onnx", "onnx_outputs",
            "check_inputs"]
@@ -80,15 +83,12 @@ class Exportable:
         augmented model the speeds read ``delay`` later and their rates."""
         if not self.with_rates:
             return flight.u.astype(np.float32)
-        from nanosysid.discover.model import augmented_inputs
 
         u = torch.from_numpy(flight.u)[None]
         return augmented_inputs(u, self.delay, float(self.step.dt))[0].float().numpy()
 
     def outputs_in(self, y: np.ndarray) -> np.ndarray:
         """Flight outputs ``(N, 13)`` in the step's representation ``(N, ny)``, float32."""
-        from nanosysid.models.learned import to_tilde
-
         t = torch.from_numpy(np.ascontiguousarray(y, dtype=np.float64))
         if self.ny == 12:
             t = to_tilde(t)
@@ -112,8 +112,6 @@ class Exportable:
 def physics_step(predict, name: str) -> Exportable:
     """The exportable step of a physics model (a :class:`~nanosysid.rollout.StepPredictor` of a
     :class:`~nanosysid.models.physics.PhysicsStep`)."""
-    from nanosysid.models.physics import PhysicsStep
-
     p = predict.step
     step = PhysicsStep(p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.angular_dynamics)
     c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.angular_dynamics)
@@ -122,8 +120,6 @@ def physics_step(predict, name: str) -> Exportable:
 
 def augmented_step(predict, name: str) -> Exportable:
     """The exportable step of the discovered model (an :class:`~nanosysid.discover.model.AugmentedPredictor`)."""
-    from nanosysid.discover.model import AugmentedStep
-
     p = predict.step
     effects = list(p.coefficients().items())
     step = AugmentedStep(p.vehicle, p.effects, p.theta.tolist(), dt=p.dt, substeps=p.substeps)

@@ -26,6 +26,9 @@ import torch
 from torch import Tensor, nn
 
 from nanosysid import so3
+from nanosysid.dataio import atomic_file
+from nanosysid.errors import ConfigError, DataError
+from nanosysid.models.components import network_class
 from nanosysid.models.physics import PhysicsStep
 from nanosysid.rollout import as_tensor
 from nanosysid.vehicle import Vehicle
@@ -125,8 +128,6 @@ def save_checkpoint(model: SequenceModel, network: dict[str, Any], path: Path,
     Args:
         network: ``{"name": key, "options": {...}}``, what :func:`load_checkpoint` rebuilds.
     """
-    from nanosysid.dataio import atomic_file
-
     physics, state = _physics_spec(model.physics), model.state_dict()
     payload = {"format": FORMAT, "network": network, "physics": physics, "state_dict": state,
                "sha256": content_hash(network, physics, state), "extra": extra or {}}
@@ -140,9 +141,6 @@ def save_checkpoint(model: SequenceModel, network: dict[str, Any], path: Path,
 
 def build_network(name: str, options: dict[str, Any]) -> nn.Module:
     """A network of :mod:`nanosysid.models.components` by key, with its constructor's arguments."""
-    from nanosysid.errors import ConfigError
-    from nanosysid.models.components import network_class
-
     try:
         cls = network_class(name)
     except KeyError as e:
@@ -173,8 +171,6 @@ def load_checkpoint(path: str | Path) -> tuple[SequenceModel, dict[str, Any]]:
     """
     import pickle
     import zipfile
-
-    from nanosysid.errors import ConfigError, DataError
 
     path = Path(path)
     if not path.is_file():

@@ -1,0 +1,160 @@
+"""The stages' code dependencies, from the import graph: what every ``python -m stages.<name>``
+imports of the project, written into the ``deps:`` lists of ``dvc.yaml``.
+
+Imports are read from the source (``ast``), lazy imports inside functions included, and
+followed through the project's own modules (``nanosysid`` and ``stages``); importing a
+submodule runs its packages' ``__init__`` too, and a package that imports its modules by name
+(``importlib.import_module(f"{__name__}.{name}")``, the networks) counts as importing all of
+them. A stage depends on exactly those files, so an edit reruns the stages that run the edited
+code and no other.
+
+Command line::
+
+    python -m nanosysid.depgraph write    # rewrite the code entries of dvc.yaml's deps lists
+    python -m nanosysid.depgraph check    # exit 1 when dvc.yaml differs from the import graph
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import re
+import sys
+from functools import lru_cache
+from pathlib import Path
+from typing import Sequence
+
+import yaml
+
+__all__ = ["module_file", "direct_imports", "imported_files", "stages", "needed_deps", "written_deps"]
+
+OWN = ("nanosysid", "stages")
+ROOT = Path(__file__).resolve().parents[2]  # the project: src/nanosysid/depgraph.py
+CODE = ("src/", "stages/")  # deps entries that are code, which the graph decides
+
+
+def _src(root: Path) -> Path:
+    return root / "src"
+
+
+def module_file(name: str, root: Path = ROOT) -> Path | None:
+    """The file of a project module or package, None for anything else."""
+    if name.split(".")[0] not in OWN:
+        return None
+    base = (_src(root) if name.startswith("nanosysid") else root) / Path(*name.split("."))
+    for f in (base.with_suffix(".py"), base / "__init__.py"):
+        if f.is_file():
+            return f
+    return None
+
+
+def _parents(name: str) -> list[str]:
+    parts = name.split(".")
+    return [".".join(parts[:i]) for i in range(1, len(parts))]
+
+
+@lru_cache(maxsize=None)
+def direct_imports(path: Path, root: Path = ROOT) -> frozenset[str]:
+    """Project modules a file imports anywhere in its body."""
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+            # `from package import module` imports the module
+            names.update(f"{node.module}.{a.name}" for a in node.names if module_file(f"{node.module}.{a.name}", root))
+    out = set()
+    for n in names:
+        for m in (*_parents(n), n):
+            if module_file(m, root):
+                out.add(m)
+    if path.name == "__init__.py" and "importlib.import_module(f\"{__name__}." in path.read_text():
+        # a package that loads its modules by name (the networks) depends on all of them
+        src = _src(root)
+        package = ".".join(path.relative_to(src if src in path.parents else root).parent.parts)
+        out.update(f"{package}.{f.stem}" for f in path.parent.glob("*.py") if f.stem != "__init__")
+    return frozenset(out)
+
+
+def imported_files(module: str, root: Path = ROOT) -> set[Path]:
+    """Every project file that running ``python -m <module>`` imports (itself included)."""
+    seen: set[str] = set()
+    todo = [module, *_parents(module)]
+    while todo:
+        m = todo.pop()
+        if m in seen or not module_file(m, root):
+            continue
+        seen.add(m)
+        todo.extend(direct_imports(module_file(m, root), root))
+    return {module_file(m, root) for m in seen}
+
+
+def stages(root: Path = ROOT) -> dict[str, tuple[str, list[str]]]:
+    """``{stage: (script module, deps)}`` of ``dvc.yaml``."""
+    spec = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]
+    out = {}
+    for name, s in spec.items():
+        body = s.get("do", s)
+        module = re.search(r"python -m (\S+)", body["cmd"]).group(1)
+        out[name] = (module, [d for d in body.get("deps", []) if "${" not in d])
+    return out
+
+
+def needed_deps(module: str, root: Path = ROOT) -> list[str]:
+    """The files a stage imports, sorted; one entry per file, so that an edit to a module the
+    stage does not import never reruns it."""
+    return sorted(str(f.relative_to(root)) for f in imported_files(module, root))
+
+
+def written_deps(text: str, root: Path = ROOT) -> str:
+    """``dvc.yaml``'s text with the code entries of every stage's ``deps`` list replaced by the
+    import graph's (the other entries, data and settings files, kept in their order after them)."""
+    modules = {name: module for name, (module, _) in stages(root).items()}
+    lines = text.splitlines(keepends=True)
+    out: list[str] = []
+    stage = None
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        m = re.match(r"^  ([\w@-]+):\s*$", line)
+        if m:
+            stage = m.group(1)
+        dm = re.match(r"^(\s+)deps:\s*$", line)
+        if dm and stage in modules:
+            out.append(line)
+            i += 1
+            items = []
+            while i < len(lines) and re.match(rf"^{dm.group(1)}  - ", lines[i]):
+                items.append(lines[i])
+                i += 1
+            indent = dm.group(1) + "  - "
+            kept = [it for it in items if not it[len(indent):].strip().startswith(CODE)]
+            out += [f"{indent}{d}\n" for d in needed_deps(modules[stage], root)] + kept
+            continue
+        out.append(line)
+        i += 1
+    return "".join(out)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m nanosysid.depgraph", description=__doc__.split("\n")[0])
+    parser.add_argument("command", choices=["write", "check"])
+    args = parser.parse_args(argv)
+    path = ROOT / "dvc.yaml"
+    text = path.read_text()
+    new = written_deps(text)
+    if args.command == "check":
+        if new != text:
+            print("dvc.yaml's deps differ from the import graph; run `python -m nanosysid.depgraph write`",
+                  file=sys.stderr)
+            return 1
+        return 0
+    if new != text:
+        path.write_text(new)
+    print(f"dvc.yaml: deps {'rewritten from' if new != text else 'match'} the import graph")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,156 @@
+"""The predictors of the benchmark by kind: one registry maps each kind to its builder, its
+exporter and its cost counter. It sits above everything it registers (the models, the
+simulator's oracle, discovery's augmented model, the exporters), none of which imports it.
+
+A model's config block (``models.<name>``) names its ``kind``; the rest are the builder's
+keyword arguments. Learned models of every network are one kind (``learned``): their network
+comes from the checkpoint.
+
+Example::
+
+    from nanosysid import predictors
+    predict = predictors.predictor("physics")   # "naive", "physics_full", "oracle", or "models/lstm/model.pt"
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+from nanosysid import sim
+from nanosysid.discover.model import load_discovered
+from nanosysid.errors import ConfigError, ExportError
+from nanosysid.export import cost as costs
+from nanosysid.export import steps
+from nanosysid.identify import identified_vehicle
+from nanosysid.models.learned import LearnedPredictor, load_checkpoint
+from nanosysid.models.physics import PhysicsStep, naive_predict
+from nanosysid.rollout import StepPredictor
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["ModelKind", "KINDS", "predictor", "build_from_options", "step_cost", "exportable"]
+
+Predictor = Callable[..., Any]
+
+
+@dataclass(frozen=True)
+class ModelKind:
+    """What the pipeline does with one kind of model.
+
+    Attributes:
+        build: ``build(**options) -> predictor``.
+        export: ``export(predictor, name) -> Exportable`` (:mod:`nanosysid.export.steps`);
+            None when the kind has no step to run on the microcontroller.
+        cost: ``cost(predictor) -> {"params", "flops", "flops_method"}`` of one step.
+    """
+
+    build: Callable[..., Predictor]
+    export: Callable[[Predictor, str], Any] | None
+    cost: Callable[[Predictor], dict[str, Any]]
+
+
+def _vehicle(v: Any) -> Vehicle:
+    """A vehicle from a config mapping; the paper's (``Vehicle()``, equal to ``conf/vehicle``)
+    for the Python API's ``predictors.predictor("physics")``."""
+    if v is None:
+        return Vehicle()
+    return v if isinstance(v, Vehicle) else Vehicle.from_mapping(v)
+
+
+def _naive(**options: Any) -> Predictor:
+    if options:
+        raise ConfigError(f"naive model takes no options, got {sorted(options)}")
+    return naive_predict
+
+
+def _physics(*, angular_dynamics: bool, name: str) -> Callable[..., Predictor]:
+    def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1, identified: str | None = None) -> Predictor:
+        v = identified_vehicle(_vehicle(vehicle), identified)
+        step = PhysicsStep(v, dt=dt, substeps=substeps, angular_dynamics=angular_dynamics)
+        return StepPredictor(step, name=name)
+
+    return build
+
+
+def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: float = 0.01,
+            rotor_delay: float | None = None, seed: int = 0) -> Predictor:
+    eff = None if effects is None else dict(effects)
+    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay, seed=int(seed))
+
+
+def _learned(*, checkpoint: str, **training: Any) -> Predictor:
+    """A trained model from its checkpoint; the network and training keys of its config are
+    in the checkpoint (or only matter to training), so they are not needed here."""
+    model, ckpt = load_checkpoint(checkpoint)
+    # a checkpoint of another model (an LSTM's where a residual MLP is configured) is refused
+    net = ckpt["network"]["name"]
+    wanted = (training.get("network") or {}).get("name")
+    if wanted is not None and wanted != net:
+        raise ConfigError(f"{checkpoint}: holds a {net} network, but the model's config names {wanted}")
+    if "network" in training and ("physics" in training) != (ckpt["physics"] is not None):
+        said = ("has a physics base, but the model's config has no physics key" if ckpt["physics"] is not None
+                else "has no physics base, but the model's config gives one")
+        raise ConfigError(f"{checkpoint}: the network {said}")
+    return LearnedPredictor(model, name=net)
+
+
+def _discovered(*, model: str) -> Predictor:
+    """The nominal model with the effects the discover stage named (``model.json``)."""
+    return load_discovered(model)
+
+
+KINDS: dict[str, ModelKind] = {
+    "naive": ModelKind(_naive, None, costs.no_cost),
+    "physics": ModelKind(_physics(angular_dynamics=False, name="physics"), steps.physics_step, costs.physics_cost),
+    "physics_full": ModelKind(_physics(angular_dynamics=True, name="physics_full"), steps.physics_step,
+                              costs.physics_cost),
+    "oracle": ModelKind(_oracle, None, costs.no_cost),
+    "learned": ModelKind(_learned, steps.learned_step, costs.learned_cost),
+    "discovered": ModelKind(_discovered, steps.augmented_step, costs.augmented_cost),
+}
+
+
+def _kind(kind: str) -> ModelKind:
+    try:
+        return KINDS[kind]
+    except KeyError:
+        raise ConfigError(f"unknown model kind {kind!r}; known: {', '.join(sorted(KINDS))}") from None
+
+
+def predictor(kind: str, **options: Any) -> Predictor:
+    """A predictor ``predict(y0 (B,13), u (B,H,4)) -> (B,H,13)`` by kind: ``naive``,
+    ``physics``, ``physics_full``, ``oracle`` (simulated data), ``discovered``, or the path of a
+    learned model's checkpoint (``models/<name>/model.pt``).
+
+    Options are the model's config keys (for the physics models: ``vehicle``, a mapping or
+    :class:`~nanosysid.vehicle.Vehicle`; ``dt``; ``substeps``; ``identified``, the path of an
+    ``identify`` result whose k_F and k_M replace the vehicle's).
+    """
+    if kind.endswith((".pt", ".ckpt")):
+        return _learned(checkpoint=kind)
+    return _kind(kind).build(**options)
+
+
+def build_from_options(options: dict[str, Any]) -> Predictor:
+    """The predictor of a ``models.<name>`` block as plain data (``kind`` plus options).
+
+    ``artifact`` names the file or folder the model is made from, for DVC's dependency
+    tracking, and ``train`` only matters to training; neither is an option of the predictor.
+    A learned model's ``network`` and ``physics`` are checked against its checkpoint.
+    """
+    opts = {k: v for k, v in options.items() if k not in ("kind", "artifact", "train")}
+    return predictor(options["kind"], **opts)
+
+
+def step_cost(kind: str, predict: Predictor) -> dict[str, Any]:
+    """Parameters and FLOPs of one step of a predictor of this kind."""
+    return _kind(kind).cost(predict)
+
+
+def exportable(kind: str, predict: Predictor, name: str) -> Any:
+    """The exportable step (:class:`nanosysid.export.steps.Exportable`) of a predictor."""
+    export = _kind(kind).export
+    if export is None:
+        raise ExportError(f"model {name!r} (kind {kind!r}) has no step to export: "
+                          f"kinds with one are {', '.join(k for k, m in KINDS.items() if m.export)}")
+    return export(predict, name)
