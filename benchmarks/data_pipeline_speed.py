@@ -14,13 +14,10 @@ from omegaconf import OmegaConf
 from rosbags.highlevel import AnyReader
 
 from nanosysid.config import load_params
-from nanosysid.bags.extract import find_bags
+from nanosysid.bags.extract import extract_folder, find_bags
 from nanosysid.bags.messages import typestore
-from nanosysid.bags.filtering import FilterConfig
-from nanosysid.bags.sync import SyncConfig
-from stages.extract import extract_folder
-from stages.filter import filter_folder
-from stages.sync import sync_folder
+from nanosysid.bags.filtering import FilterConfig, filter_folder
+from nanosysid.bags.sync import SyncConfig, sync_folder
 
 
 def main() -> dict[str, float]:

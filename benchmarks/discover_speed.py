@@ -6,18 +6,19 @@ from __future__ import annotations
 
 import time
 
+from omegaconf import OmegaConf
+
 from nanosysid import benchmark, discover
 from nanosysid.config import load_params
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.predictors import build_from_options
 from nanosysid.vehicle import Vehicle
-from stages.common import plain
 
 
 def main() -> dict[str, float]:
     cfg = load_params()
     bench = benchmark.load(cfg.paths.split)
-    oracle = build_from_options(plain(cfg.discover.oracle)) if cfg.discover.oracle else None
+    oracle = build_from_options(OmegaConf.to_container(cfg.discover.oracle, resolve=True)) if cfg.discover.oracle else None
     t0 = time.perf_counter()
     benchmark.evaluate(AugmentedPredictor(AugmentedStep(Vehicle())), bench.test)
     t_eval = time.perf_counter() - t0

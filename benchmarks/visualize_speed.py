@@ -7,11 +7,12 @@ import tempfile
 import time
 from pathlib import Path
 
+from omegaconf import OmegaConf
+
 from nanosysid import benchmark
 from nanosysid.config import load_params
 from nanosysid.predictors import build_from_options
 from nanosysid.viz.rerun import write_recording
-from stages.common import plain
 
 
 def main() -> dict[str, float]:
@@ -19,7 +20,7 @@ def main() -> dict[str, float]:
     H = int(cfg.eval.horizon)
     t0 = time.perf_counter()
     bench = benchmark.load(cfg.paths.split, horizon=H)
-    predictors = {n: build_from_options(plain(m)) for n, m in cfg.models.items()}
+    predictors = {n: build_from_options(OmegaConf.to_container(m, resolve=True)) for n, m in cfg.models.items()}
     t_load = time.perf_counter() - t0
     t_pred = t_write = 0.0
     with tempfile.TemporaryDirectory() as d:

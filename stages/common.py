@@ -19,12 +19,12 @@ from typing import Any, Callable, Sequence
 from omegaconf import DictConfig, OmegaConf
 
 from nanosysid.config import load_params
-from nanosysid.dataio import atomic_file, Flight, json_text
+from nanosysid.dataio import Flight
 from nanosysid.errors import ConfigError, UserError
 from nanosysid.guard import stage_run
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["run_stage", "plain", "vehicle_of", "model_options", "pick_flight", "write_json"]
+__all__ = ["run_stage", "plain", "vehicle_of", "model_options", "pick_flight"]
 
 log = logging.getLogger("nanosysid")
 
@@ -114,7 +114,3 @@ def pick_flight(flights: list[Flight], name: str | None, key: str) -> Flight:
     return hits[0]
 
 
-def write_json(path: str | Path, payload: Any) -> None:
-    """``payload`` as indented JSON, written atomically."""
-    with atomic_file(Path(path)) as tmp:
-        tmp.write_text(json_text(payload))

@@ -9,12 +9,12 @@ import torch
 from omegaconf import DictConfig
 
 from nanosysid import benchmark, so3
-from nanosysid.dataio import SAMPLE_PERIOD, atomic_file, read_flight_csv
+from nanosysid.dataio import SAMPLE_PERIOD, atomic_file, read_flight_csv, write_json
 from nanosysid.errors import DataError
 from nanosysid.models.physics import PhysicsStep
 from nanosysid.rollout import StepPredictor
 from nanosysid.vehicle import Vehicle
-from stages.common import run_stage, vehicle_of, write_json
+from stages.common import run_stage, vehicle_of
 
 
 def quality_report(

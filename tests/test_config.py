@@ -29,7 +29,7 @@ def test_committed_params_yaml_is_the_composition_of_conf():
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "model").glob("*.yaml")))
 def test_every_model_config_composes_and_predicts(name, tmp_path):
     from nanosysid.identify import Fit, save_params
-    from stages.train import network_spec, physics_base
+    from nanosysid.models.training import network_spec, physics_base
 
     cfg = yaml.safe_load(config.compose_text([f"+model@models.probe={name}"], conf_dir=ROOT / "conf"))
     m = cfg["models"]["probe"]

@@ -19,7 +19,7 @@ from nanosysid.bags.recorder import RecorderConfig, record_flight
 from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence, sync_flight
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
-from stages.extract import extract_folder
+from nanosysid.bags.extract import extract_folder
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -36,6 +36,7 @@ __all__ = [
     "read_flight_csv",
     "write_flight_csv",
     "check_finite",
+    "write_json",
     "read_json_record",
     "json_text",
     "session_of",
@@ -389,3 +390,9 @@ def atomic_dir(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike] =
             c.forget(tmp)
             if tmp.exists():
                 shutil.rmtree(tmp)
+
+
+def write_json(path: str | os.PathLike, payload) -> None:
+    """``payload`` as strict, indented JSON (:func:`json_text`), written atomically."""
+    with atomic_file(Path(path)) as tmp:
+        tmp.write_text(json_text(payload))

@@ -96,11 +96,13 @@ def test_a_failed_cluster_job_is_one_line_naming_the_job_and_its_log(tmp_path):
     ("models.lstm.train.optimizer.weight_decay=abc", "not supported between instances"),
 ])
 def test_an_optimiser_the_class_refuses_is_one_error_before_training(params, override, words):
-    from stages.train import optimiser_parts
+    from omegaconf import OmegaConf
 
-    cfg = config.load_params([override], path=params)
+    from nanosysid.models.training import optimiser_parts
+
+    t = OmegaConf.to_container(config.load_params([override], path=params).models.lstm.train)
     with pytest.raises(ConfigError, match=r"models\.lstm\.train\.optimizer / scheduler: cannot build them") as e:
-        optimiser_parts(cfg.models.lstm.train, "lstm")
+        optimiser_parts(t["optimizer"], t["scheduler"], "models.lstm.train")
     assert words in str(e.value)
 
 

@@ -17,11 +17,13 @@ import numpy as np
 import pandas as pd
 import yaml
 from rosbags.highlevel import AnyReader
+from tqdm.auto import tqdm
 
-from nanosysid.errors import ConfigError, DataError
 from nanosysid.bags.messages import typestore
+from nanosysid.dataio import atomic_dir, check_finite
+from nanosysid.errors import ConfigError, DataError
 
-__all__ = ["find_bags", "extract_bag", "check_topics", "check_crc", "STREAM_COLUMNS", "MAX_CLOCK_STEP", "CRC_KEY"]
+__all__ = ["find_bags", "extract_bag", "extract_folder", "check_topics", "check_crc", "STREAM_COLUMNS", "MAX_CLOCK_STEP", "CRC_KEY"]
 
 log = logging.getLogger(__name__)
 
@@ -291,3 +293,18 @@ def _check_clock(where: str, t_src: np.ndarray, t_recv: np.ndarray) -> None:
     raise DataError(f"{where}, message {i}: the receive time goes backwards by {size:.3f} s against the "
                     f"source time stamps (more than {MAX_CLOCK_STEP:g} sample periods): the host's clock "
                     "jumped back or the source's jumped forward")
+
+
+def extract_folder(bags_dir: Path, out_dir: Path, topics: Mapping[str, Mapping[str, Any]]) -> list[str]:
+    """Every bag of ``bags_dir`` to ``out_dir/<flight>/<stream>.parquet``."""
+    bags = find_bags(bags_dir)
+    with atomic_dir(out_dir, inputs=[bags_dir]) as tmp:
+        for bag in tqdm(bags, desc="extract", unit="bag", disable=None):
+            tables = extract_bag(bag, topics)
+            (tmp / bag.name).mkdir()
+            for stream, df in tables.items():
+                # a motor's NaN is a missed reading, marked so for sync
+                check_finite(df, f"{bag}: stream {stream}", allowed=STREAM_COLUMNS["motors"] if stream == "motors" else ())
+                df.to_parquet(tmp / bag.name / f"{stream}.parquet", index=False)
+    log.info("extract: %d bags from %s", len(bags), bags_dir)
+    return [b.name for b in bags]

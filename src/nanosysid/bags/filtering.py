@@ -16,21 +16,25 @@ samples is an error naming the signal and the interval.
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any, Mapping
 
 import numpy as np
 import pandas as pd
 import torch
 from scipy.signal import butter, sosfiltfilt
+from tqdm.auto import tqdm
 
 from nanosysid import so3
-from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, Flight
+from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, Flight, atomic_dir, write_flight_csv, write_json
 from nanosysid.errors import DataError
 
-__all__ = ["FilterConfig", "filter_flight", "lowpass", "fill_gaps"]
+__all__ = ["FilterConfig", "filter_flight", "filter_folder", "lowpass", "fill_gaps"]
 
 QUAT = ["qx", "qy", "qz", "qw"]
+log = logging.getLogger("nanosysid.filter")
 
 
 @dataclass(frozen=True)
@@ -142,3 +146,21 @@ def filter_flight(name: str, synced: pd.DataFrame, cfg: FilterConfig) -> tuple[F
         flight.extra["yaw_ref"] = synced["yaw_ref"].to_numpy().copy()
     report = {"flight": name, "gaps_left": {k: [list(g) for g in v] for k, v in left.items()}}
     return flight, report
+
+
+def filter_folder(sync_dir: Path, out_dir: Path, report_dir: Path, cfg: FilterConfig) -> list[dict]:
+    """Filter every synchronised flight into ``out_dir/<flight>.csv`` (the published schema)."""
+    files = sorted(Path(sync_dir).glob("*.parquet"))
+    if not files:
+        raise DataError(f"{sync_dir}: no synchronised flights")
+    reports = []
+    with atomic_dir(out_dir, inputs=[sync_dir]) as tmp:
+        for f in tqdm(files, desc="filter", unit="flight", disable=None):
+            flight, rep = filter_flight(f.stem, pd.read_parquet(f), cfg)
+            write_flight_csv(flight, tmp / f"{f.stem}.csv")
+            for group, runs in rep["gaps_left"].items():
+                log.warning("%s: %s has %d gap(s) longer than %d samples, left unfilled",
+                            f.stem, group, len(runs), cfg.max_gap)
+            reports.append(rep)
+    write_json(Path(report_dir) / "filter.json", reports)
+    return reports

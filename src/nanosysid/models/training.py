@@ -11,10 +11,11 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pytorch_lightning as pl
+from hydra.utils import instantiate
 import torch
 from torch import Tensor
 from torch.utils.data import DataLoader, TensorDataset
@@ -22,10 +23,12 @@ from torch.utils.data import DataLoader, TensorDataset
 from nanosysid.benchmark import windows
 from nanosysid.dataio import Flight
 from nanosysid.errors import ConfigError
+from nanosysid.identify import identified_vehicle
 from nanosysid.models.learned import SequenceModel, build_model, save_checkpoint, to_tilde
 from nanosysid.models.physics import PhysicsStep
+from nanosysid.vehicle import Vehicle
 
-__all__ = ["SysIdModule", "window_tensors", "train_model"]
+__all__ = ["SysIdModule", "window_tensors", "train_model", "network_spec", "physics_base", "optimiser_parts"]
 
 log = logging.getLogger(__name__)
 
@@ -203,3 +206,35 @@ class _KeepBest(pl.Callback):
         if v < self.value:
             self.value = v
             self.state = {k: t.detach().cpu().clone() for k, t in module.model.state_dict().items()}
+
+
+def network_spec(m: dict[str, Any]) -> dict[str, Any]:
+    """``{"name", "options"}`` of a learned model's ``network`` block (what its checkpoint stores)."""
+    net = dict(m["network"])
+    return {"name": net.pop("name"), "options": net}
+
+
+def physics_base(m: dict[str, Any]) -> PhysicsStep | None:
+    """The physics step of a ``physics`` block (physics + residual), k_F and k_M identified."""
+    p = m.get("physics")
+    if p is None:
+        return None
+    v = identified_vehicle(Vehicle.from_mapping(p["vehicle"]), p.get("identified"))
+    return PhysicsStep(v, dt=float(p["dt"]), substeps=int(p["substeps"]), angular_dynamics=False)
+
+
+def optimiser_parts(optimizer: Mapping[str, Any], scheduler: Mapping[str, Any] | None, where: str = "train"):
+    """The optimiser and scheduler factories of a model's config blocks (Hydra ``_target_``
+    blocks with ``_partial_: true``), tried once on a probe parameter so that a bad argument
+    (``lr=abc``, a keyword the class does not take) is one error, naming ``where``, before
+    training starts."""
+    try:
+        make_optimizer = instantiate(dict(optimizer))
+        probe = make_optimizer([torch.zeros(1, requires_grad=True)])
+        make_scheduler = instantiate(dict(scheduler)) if scheduler else None
+        if make_scheduler is not None:
+            make_scheduler(probe)
+    except Exception as e:  # Hydra's InstantiationException, or the class's own TypeError / ValueError
+        first = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+        raise ConfigError(f"{where}.optimizer / scheduler: cannot build them ({first})") from None
+    return make_optimizer, make_scheduler
