@@ -429,6 +429,12 @@ def _check_rotors(name: str, t: np.ndarray, out: pd.DataFrame, masks: Mapping[st
                                 "includes the ground)")
 
 
+# the two frames are told apart where they differ by more than FRAME_APART (m/s RMS); the other
+# frame is the recording's when it matches the motion capture FRAME_BETTER times as closely (in
+# the right frame the other reading adds the frames' difference to the estimator's drift)
+FRAME_APART, FRAME_BETTER = 0.05, 0.7
+
+
 def _check_velocity_frame(name: str, t: np.ndarray, out: pd.DataFrame) -> None:
     """Refuse odometry velocities that match the motion capture's only after a rotation by the
     attitude: the topic map's ``odom.velocity_frame`` says the other frame."""
@@ -450,7 +456,7 @@ def _check_velocity_frame(name: str, t: np.ndarray, out: pd.DataFrame) -> None:
     for label, other in (("body-frame", attitude.apply(v)), ("world-frame", attitude.inv().apply(v))):
         err = float(np.sqrt(np.mean((slow(other) - slow(v_mc)) ** 2)))
         apart = float(np.sqrt(np.mean((slow(other) - slow(v)) ** 2)))
-        if apart > 0.05 and err < 0.7 * given:
+        if apart > FRAME_APART and err < FRAME_BETTER * given:
             raise DataError(f"{name}: the odometry velocities differ from the motion capture's by {given:.2f} m/s RMS, "
                             f"but by {err:.2f} m/s read as {label} values: recording.topics.odom.velocity_frame "
                             "does not match the recording (world: the velocity in the world frame; body: in the "
@@ -458,11 +464,7 @@ def _check_velocity_frame(name: str, t: np.ndarray, out: pd.DataFrame) -> None:
 
 
 def _longest_run(mask: np.ndarray) -> int:
-    if not mask.any():
-        return 0
-    padded = np.r_[0, mask.astype(int), 0]
-    edges = np.flatnonzero(np.diff(padded))
-    return int((edges[1::2] - edges[::2]).max())
+    return max((b - a for a, b in _runs(mask)), default=0)
 
 
 def extracted_flights(folder: Path) -> list[Path]:
