@@ -11,7 +11,7 @@ from nanosysid import benchmark, identify
 from nanosysid.dataio import atomic_file, json_text, read_flight_csv
 from nanosysid.report import paper, tables
 from nanosysid.sim.simulator import collective_thrust_coefficient
-from nanosysid.sim.stats import stats_markdown, trajectory_stats
+from nanosysid.report.stats import stats_markdown, trajectory_stats
 from nanosysid.sim.world import DEFAULT_WORLD, DEPENDS_ON, EFFECTS
 from stages.common import plain, run_stage, vehicle_of
 

@@ -10,7 +10,8 @@ from omegaconf import DictConfig
 from nanosysid import benchmark
 from nanosysid.dataio import atomic_file
 from nanosysid.report import tables
-from nanosysid.sim.stats import PAPER_STATS, STAT_LABELS, trajectory_stats
+from nanosysid.report.paper import PAPER_STATS
+from nanosysid.report.stats import STAT_LABELS, trajectory_stats
 from nanosysid.viz import benchmark as figures
 from nanosysid.viz.signals import ahead
 from nanosysid.predictors import build_from_options

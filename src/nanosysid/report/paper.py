@@ -16,8 +16,16 @@ from typing import Any, Mapping, Sequence
 from nanosysid.benchmark import Scores
 from nanosysid.metrics import QUANTITIES
 
-__all__ = ["PAPER_RESULTS", "PAPER_MODELS", "PAPER_IDENTIFIED", "Comparison", "compare_results",
+__all__ = ["PAPER_STATS", "PAPER_RESULTS", "PAPER_MODELS", "PAPER_IDENTIFIED", "Comparison", "compare_results",
            "compare_identification", "results_markdown", "identification_markdown"]
+
+# Paper, table "Benchmark statistics for real quadrotor trajectories" (averaged across runs).
+PAPER_STATS = {
+    "square": {"duration": 19.00, "v_mean": 0.83, "v_max": 2.60, "a_max": 12.53, "tilt_max": 42.95},
+    "random": {"duration": 60.00, "v_mean": 1.11, "v_max": 2.69, "a_max": 8.30, "tilt_max": 43.23},
+    "melon": {"duration": 65.00, "v_mean": 1.44, "v_max": 3.06, "a_max": 10.91, "tilt_max": 56.07},
+    "chirp": {"duration": 60.00, "v_mean": 0.88, "v_max": 3.02, "a_max": 10.13, "tilt_max": 62.69},
+}
 
 # The paper's table of numerical performance (Melon test flights): MAE at h = 1, 10, 50 and the
 # SimErr (sum over h = 1..50), per quantity, for its five models (our names).

@@ -7,21 +7,13 @@ import torch
 
 from nanosysid import so3
 from nanosysid.dataio import Flight
+from nanosysid.report.paper import PAPER_STATS
 
-__all__ = ["flight_stats", "trajectory_stats", "PAPER_STATS", "STAT_NAMES"]
+__all__ = ["flight_stats", "trajectory_stats", "stats_markdown", "STAT_NAMES", "STAT_LABELS"]
 
 STAT_NAMES = ("duration", "v_mean", "v_max", "a_max", "tilt_max")
 STAT_LABELS = {"duration": "Duration [s]", "v_mean": "v_mean [m/s]", "v_max": "v_max [m/s]",
                "a_max": "a_max [m/s²]", "tilt_max": "Max tilt [°]"}
-
-# Paper, table "Benchmark statistics for real quadrotor trajectories" (averaged across runs).
-PAPER_STATS = {
-    "square": {"duration": 19.00, "v_mean": 0.83, "v_max": 2.60, "a_max": 12.53, "tilt_max": 42.95},
-    "random": {"duration": 60.00, "v_mean": 1.11, "v_max": 2.69, "a_max": 8.30, "tilt_max": 43.23},
-    "melon": {"duration": 65.00, "v_mean": 1.44, "v_max": 3.06, "a_max": 10.91, "tilt_max": 56.07},
-    "chirp": {"duration": 60.00, "v_mean": 0.88, "v_max": 3.02, "a_max": 10.13, "tilt_max": 62.69},
-}
-
 
 def flight_stats(f: Flight, gravity: float = 9.81) -> dict[str, float]:
     """Duration, mean and max speed, max acceleration and max tilt of one flight.
