@@ -13,7 +13,6 @@ import argparse
 import errno
 import logging
 import sys
-from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from omegaconf import DictConfig, OmegaConf

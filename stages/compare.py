@@ -53,7 +53,7 @@ def main(cfg: DictConfig) -> None:
         parts.append(world_markdown(plain(cfg.sim.effects)))
     parts.append(stats_markdown(trajectory_stats(bench.train + bench.test)).replace("# ", "## ", 1))
     if source.startswith("sim"):
-        params = identify.load_params(Path(cfg.identify.out_dir) / "params.json")
+        params = identify.read_identified(Path(cfg.identify.out_dir) / "params.json")
         vehicle = vehicle_of(cfg)
         paper.compare_identification(comparison, params, k_f=vehicle.k_f, k_m=vehicle.k_m,
                                      k_f_thrust=nature_thrust_coefficient(Path(cfg.sim.out_dir) / "csv",

@@ -29,7 +29,7 @@ def main(cfg: DictConfig) -> None:
                                          lags=[float(x) for x in c.iv_lags], blocks=int(c.iv_blocks))
     identify.check_plausible(thrust, yaw, vehicle)
     out = Path(c.out_dir)
-    identify.save_params(out / "params.json", thrust, yaw, bench.train, yaw_paper=yaw_paper if calibration else None,
+    identify.write_identified(out / "params.json", thrust, yaw, bench.train, yaw_paper=yaw_paper if calibration else None,
                          calibration=calibration)
     for name, fit in (("k_F", thrust), ("k_M", yaw)) + ((("k_M, the paper's method", yaw_paper),) if calibration else ()):
         lo, hi = fit.ci95 if fit.ci95 is not None else (float("nan"), float("nan"))

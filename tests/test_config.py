@@ -28,7 +28,7 @@ def test_committed_params_yaml_is_the_composition_of_conf():
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "model").glob("*.yaml")))
 def test_every_model_config_composes_and_predicts(name, tmp_path):
-    from nanosysid.identify import Fit, save_params
+    from nanosysid.identify import Fit, write_identified
     from nanosysid.models.training import network_spec, physics_base
 
     cfg = yaml.safe_load(config.compose_text([f"+model@models.probe={name}"], conf_dir=ROOT / "conf"))
@@ -36,7 +36,7 @@ def test_every_model_config_composes_and_predicts(name, tmp_path):
     assert m["artifact"]  # every model names what evaluate depends on
     # the artifacts are pipeline outputs: make them here from the config itself
     fit = Fit(coef=3.7e-8, stderr=0.0, r2=1.0, intercept=0.0, n=1)
-    save_params(tmp_path / "params.json", fit, dataclasses.replace(fit, coef=7.7e-11), [])
+    write_identified(tmp_path / "params.json", fit, dataclasses.replace(fit, coef=7.7e-11), [])
     for block in (m, m.get("physics") or {}):
         if block.get("identified"):
             block["identified"] = str(tmp_path / "params.json")

@@ -37,7 +37,7 @@ def test_yaw_offset_goes_to_the_intercept_not_to_k_m():
 def test_physics_models_use_the_identified_coefficients(tmp_path):
     path = tmp_path / "params.json"
     fit = identify.Fit(coef=4.0e-8, stderr=1e-10, r2=0.99, intercept=0.0, n=10)
-    identify.save_params(path, fit, dataclasses.replace(fit, coef=8.0e-11), [])
+    identify.write_identified(path, fit, dataclasses.replace(fit, coef=8.0e-11), [])
     v = identify.identified_vehicle(Vehicle(), path)
     assert v.k_f == 4.0e-8 and v.k_m == 8.0e-11 and v.mass == Vehicle().mass
     step = predictors.predictor("physics_full", identified=str(path)).step

@@ -19,7 +19,7 @@ Student's t), not from the white-residual formula, which the residuals' correlat
 makes far too narrow; the white-residual error is kept beside it.
 
 The result, ``params.json``, is written and read through
-one pair of functions (:func:`save_params`, :func:`load_params`); the physics models,
+one pair of functions (:func:`write_identified`, :func:`read_identified`); the physics models,
 discovery and the export take k_F and k_M from it (:func:`identified_vehicle`).
 """
 
@@ -40,8 +40,8 @@ from nanosysid.dynamics import SPIN
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "fit_yaw_moment_iv", "identify", "body_torque", "yaw_regressor", "save_params",
-           "load_params", "identified_vehicle"]
+__all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "fit_yaw_moment_iv", "identify", "body_torque", "yaw_regressor", "write_identified",
+           "read_identified", "identified_vehicle"]
 
 FORMAT = "nanosysid-identified-1"
 CLOSED_LOOP_BIAS = ("possible: no calibration flight with yaw excitation, so k_M is least squares on closed-loop "
@@ -269,7 +269,7 @@ def check_plausible(thrust: Fit, yaw: Fit, vehicle: Vehicle) -> None:
                             "add flights that excite it (a yaw calibration flight for k_M)")
 
 
-def save_params(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Flight], *,
+def write_identified(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Flight], *,
                 yaw_paper: Fit | None = None, calibration: Sequence[Flight] = ()) -> dict[str, Any]:
     """Write ``params.json``: k_F and k_M, their fits (estimator, 95 % interval, conditioning),
     and the flights they were fitted on. ``yaw_paper`` is the paper's least-squares k_M, kept
@@ -288,8 +288,8 @@ def save_params(path: str | Path, thrust: Fit, yaw: Fit, flights: Sequence[Fligh
     return payload
 
 
-def load_params(path: str | Path) -> dict[str, Any]:
-    """Read a ``params.json`` written by :func:`save_params`, checked: k_F and k_M positive and finite."""
+def read_identified(path: str | Path) -> dict[str, Any]:
+    """Read a ``params.json`` written by :func:`write_identified`, checked: k_F and k_M positive and finite."""
     path = Path(path)
     d = read_json_record(path, FORMAT, "identified parameters", "identify")
     for key in ("k_f", "k_m"):
@@ -304,5 +304,5 @@ def identified_vehicle(vehicle: Vehicle, path: str | Path | None) -> Vehicle:
     keeps the vehicle's own (a deliberate choice of the config, ``identified: null``)."""
     if path is None:
         return vehicle
-    d = load_params(path)
+    d = read_identified(path)
     return dataclasses.replace(vehicle, k_f=float(d["k_f"]), k_m=float(d["k_m"]))

@@ -390,7 +390,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         train_flights: Flights the effects are fitted and tested on.
         test_flights: Flights the nominal and augmented models are scored on.
         vehicle: Nominal parameters, k_F and k_M as identified (the identify stage's
-            ``params.json``, :func:`nanosysid.identify.load_params`); None: the paper's vehicle
+            ``params.json``, :func:`nanosysid.identify.read_identified`); None: the paper's vehicle
             with k_F and k_M identified on ``train_flights``.
         alpha: Family-wise error rate of each test (see the module's docstring).
         floor: Size a finding needs, in noise floors: the root of its held-out gain per sample.
