@@ -8,35 +8,13 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from nanosysid import benchmark, identify
-from nanosysid.dataio import atomic_file, json_text, read_flight_csv
+from nanosysid.dataio import atomic_file, json_text
 from nanosysid.report import paper, tables
-from nanosysid.sim.simulator import collective_thrust_coefficient
 from nanosysid.report.stats import stats_markdown, trajectory_stats
-from nanosysid.sim.world import DEFAULT_WORLD, DEPENDS_ON, EFFECTS
+from nanosysid.report.world import nature_thrust_coefficient, world_markdown
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.compare")
-
-
-def world_markdown(strengths: dict[str, float]) -> str:
-    """The simulated world's effects: strength in this dataset, what each does, what it depends on."""
-    L = ["## The simulated world", "",
-         "Effects of nature in this dataset (`sim.effects`; 1.0 is a realistic magnitude, 0 off). Only the ones that "
-         "depend on the state and the rotor speeds can a model learn; the turbulence is new in every flight.", "",
-         "| effect | strength | default world | depends on | what it does |", "|---|---|---|---|---|"]
-    for name, text in EFFECTS.items():
-        L.append(f"| `{name}` | {float(strengths.get(name, 0.0)):g} | {DEFAULT_WORLD.get(name, 0.0):g} | "
-                 f"{DEPENDS_ON[name]} | {text} |")
-    return "\n".join(L) + "\n"
-
-
-def nature_thrust_coefficient(direct_dir: Path, names: list[str]) -> float | None:
-    """:func:`~nanosysid.sim.simulator.collective_thrust_coefficient` of the flights ``names`` of
-    the simulator's direct output (None where they are not there)."""
-    files = [direct_dir / f"{n}.csv" for n in names]
-    if not names or not all(f.exists() for f in files):
-        return None
-    return collective_thrust_coefficient([read_flight_csv(f) for f in files])
 
 
 def main(cfg: DictConfig) -> None:

@@ -14,7 +14,7 @@ from nanosysid.effects import entry
 from nanosysid.identify import identified_vehicle
 from nanosysid.predictors import build_from_options
 from nanosysid.report.discovery import write_report
-from nanosysid.sim.world import DEFAULT_WORLD, DEPENDS_ON
+from nanosysid.sim.world import DEFAULT_WORLD, state_effects
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.discover")
@@ -30,8 +30,7 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
         options = plain(dc.oracle)
         oracle = build_from_options(options)
         # the limit of a model of the state: the true dynamics without the effects of time
-        state = {k: v for k, v in dict(options.get("effects") or DEFAULT_WORLD).items()
-                 if not DEPENDS_ON.get(k, "").startswith("time")}
+        state = state_effects(dict(options.get("effects") or DEFAULT_WORLD))
         limit = build_from_options({**options, "effects": state, "seed": int(options.get("seed", 0))})
     H = int(cfg.eval.horizon)
     bench = benchmark.load(cfg.paths.split, horizon=H)

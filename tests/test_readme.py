@@ -141,3 +141,9 @@ def test_readme_reliability_section_is_the_fault_matrix_record(monkeypatch):
         "run `python -m nanosysid.report.readme --sections reliability`"
     rows = [line.split("|")[2:4] for line in part.splitlines() if line.startswith("| ") and "class of fault" not in line]
     assert sum(int(c) for c, _ in rows[:-1]) == record["cases"] == int(rows[-1][0])
+
+
+def test_readme_world_table_is_the_effects_records():
+    text = (ROOT / "README.md").read_text()
+    part = text[text.index(readme.WORLD_BEGIN):text.index(readme.WORLD_END) + len(readme.WORLD_END)]
+    assert part == readme.world_section(), "run `python -m nanosysid.report.readme --sections world`"

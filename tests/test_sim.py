@@ -240,6 +240,61 @@ def test_telemetry_delay_shifts_recorded_rotor_speeds():
     assert not np.allclose(f.u, true)
 
 
+def test_the_configured_world_is_the_records_defaults():
+    # one source for the default world: conf/sim lists every effect at its record's strength
+    import yaml
+    from pathlib import Path
+
+    conf = yaml.safe_load((Path(__file__).resolve().parents[1] / "conf/sim/default.yaml").read_text())
+    assert conf["effects"] == {e.name: e.default for e in fx.RECORDS}
+    assert sim.DEFAULT_WORLD == {e.name: e.default for e in fx.RECORDS if e.default}
+
+
+def _lift(c, body, omega, omega_dot):
+    return torch.nn.functional.pad(c["lift"].expand(*body.x.shape[:-1], 1), (2, 3))
+
+
+@pytest.fixture
+def toy_lift():
+    # a world effect that is no part of the simulator: a body-frame upward force of a tenth of
+    # the weight at strength 1
+    record = fx.WorldEffect("toy_lift", "a lift of a tenth of the weight", "upward body force 0.1 m g", "nothing",
+                            prepare=lambda s, vehicle, dtype: {"lift": s * 0.1 * vehicle.mass * 9.81},
+                            wrench=_lift)
+    fx.register(record)
+    yield record
+    fx.unregister(record.name)
+
+
+def test_a_new_world_effect_is_one_record_and_one_config_line(toy_lift, tmp_path):
+    import shutil
+    from pathlib import Path
+
+    import yaml
+
+    from nanosysid import config
+
+    conf = tmp_path / "conf"
+    shutil.copytree(Path(__file__).resolve().parents[1] / "conf", conf)
+    default = conf / "sim/default.yaml"
+    default.write_text(default.read_text().replace("effects:\n", "effects:\n  toy_lift: 1.0\n", 1))
+    effects = yaml.safe_load(config.compose_text([], conf_dir=conf))["sim"]["effects"]
+    assert effects["toy_lift"] == 1.0 and "toy_lift" in sim.EFFECTS
+
+    def hover(t):
+        p = np.tile([0.0, 0.0, 1.0], (len(t), 1))
+        return p, np.zeros_like(p), np.zeros_like(p)
+
+    cfg = SimConfig.from_mapping({"preroll": 1.0, "initial_offset": 0.0})
+    without = {k: v for k, v in effects.items() if k != "toy_lift"}
+    flights = simulate([sim.FlightSpec(Reference("hover", 2.0, hover), 1, effects=w, name=f"hover_t_run{i}")
+                        for i, w in enumerate((effects, without), 1)], cfg=cfg, noise=False, progress=False)
+    thrust = [np.mean(sum(f.extra[f"true_m{i}_rads"] ** 2 for i in range(1, 5))) for f in flights]
+    # Newton, level hover: the rotors carry the weight less the lift, 0.9 m g against m g in the
+    # same world otherwise (same seed: the same turbulence)
+    assert thrust[0] / thrust[1] == pytest.approx(0.9, rel=5e-3)
+
+
 def test_every_effect_is_visible_to_the_nominal_model():
     """Noise-free: physics_full is near perfect with no effect, and each effect raises its error."""
     full, naive = predictors.predictor("physics_full"), predictors.predictor("naive")

@@ -21,7 +21,7 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -41,22 +41,24 @@ __all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "World", "draw", "simulate", "judge
            "identification", "summarize_identification", "library_truth", "coefficient_coverage",
            "short_flights_config", "STRENGTH_BINS"]
 
-# world effect -> the library entries that describe it (any of its forms); a "named" verdict
-# is correct when the world has an effect it describes
-DESCRIBED_BY: dict[str, frozenset[str]] = {
-    "rotor_drag": frozenset({"induced_drag", "linear_drag", "induced_drag_moment", "drag_moment", "induced_rate_damping",
-                             "rate_damping", "inflow_thrust_loss"}),
-    "body_drag": frozenset({"quadratic_drag", "linear_drag", "induced_drag"}),
-    "telemetry_delay": frozenset({"input_delay"}),
-    "com_offset": frozenset({"cg_offset"}),
-    "motor_asymmetry": frozenset({"rotor_spread"}),
-    "rotor_inertia": frozenset({"rotor_gyro"}),
-    "inertia_offset": frozenset({"inertia", "arm"}),
-    "turbulence": frozenset(),
-    "unsteady_thrust": frozenset(),
-}
+
+
+class _DescribedBy(Mapping[str, frozenset]):
+    """World effect -> the library entries that describe it (any of its forms), from each
+    effect's record: a "named" verdict is correct when the world has an effect it describes."""
+
+    def __getitem__(self, name: str) -> frozenset[str]:
+        return nature.REGISTRY[name].described_by
+
+    def __iter__(self):
+        return iter(nature.REGISTRY)
+
+    def __len__(self) -> int:
+        return len(nature.REGISTRY)
+
+
+DESCRIBED_BY: Mapping[str, frozenset[str]] = _DescribedBy()
 STRENGTH_BINS = ((0.3, 0.7), (0.7, 1.5), (1.5, 3.0))
-TIME_VARYING = ("turbulence", "unsteady_thrust")  # no model of the state can know them
 TRAIN = ("square", "random", "chirp")
 TEST = "melon"
 CALIBRATION = "yawsweep"  # the yaw calibration flight of the identify step, no part of discovery's data
@@ -201,7 +203,7 @@ def judge(world: World, flights: Sequence, without: dict | None = None, *, horiz
         impact[e] = float(max(abs(r.before.simerr[q] - other[q]) / r.before.simerr[q] for q in other))
     # the gap a model of the state can close: to the oracle that knows every effect but the
     # time-varying ones (turbulence, the thrust fluctuation)
-    state = {k: v for k, v in world.effects.items() if k not in TIME_VARYING}
+    state = nature.state_effects(world.effects)
     reachable = benchmark.evaluate(sim.oracle(state, seed=world.seed, extra_wrench=world.extra_wrench), test,
                                    horizon=horizon).simerr if state != world.effects else r.oracle.simerr
     named = [f.name for f in r.findings if f.verdict == "named"]
@@ -231,19 +233,12 @@ def library_truth(effects: dict[str, float]) -> dict[str, dict[str, float]]:
     one (the judge's translation, written from the world's constants): library entry ->
     coefficient name -> value. The drags' entries have other forms than the world's rotor and
     airframe drag and are left out."""
-    J = Vehicle().inertia
-    values = {
-        "com_offset": ("cg_offset", lambda s: [s * nature.COM_OFFSET[0], s * nature.COM_OFFSET[1]]),
-        "telemetry_delay": ("input_delay", lambda s: [s * nature.TELEMETRY_DELAY]),
-        "rotor_inertia": ("rotor_gyro", lambda s: [s * nature.ROTOR_INERTIA]),
-        "motor_asymmetry": ("rotor_spread", lambda s: [s * d for d in nature.MOTOR_ASYMMETRY]),
-        "inertia_offset": ("inertia", lambda s: [j * s * d for j, d in zip(J, nature.INERTIA_OFFSET)]),
-    }
-    out = {}
+    vehicle, out = Vehicle(), {}
     for effect, strength in effects.items():
-        if effect in values:
-            name, fn = values[effect]
-            out[name] = dict(zip(LIBRARY[name].params, fn(float(strength))))
+        truth = nature.REGISTRY[effect].truth
+        if truth is not None:
+            name, fn = truth
+            out[name] = dict(zip(LIBRARY[name].params, fn(float(strength), vehicle)))
     return out
 
 
@@ -341,7 +336,7 @@ def summarize(rows: Sequence[dict[str, Any]], *, relevant: float = 0.10) -> dict
     clean = [r for r in rows if not r["effects"] and r["user"] is None]
     ool = [r for r in rows if r["user"] is not None]
     state = [r for r in rows if r["gap_closed"] is not None and r["gap_share"] > 0.05
-             and any(e not in TIME_VARYING for e in r["effects"])]
+             and nature.state_effects(r["effects"])]
     both = [r for r in rows if r["gap_closed"] is not None and r["sindy_gap_closed"] is not None and r["gap_share"] > 0.05]
     relevant_hits = {e: {b: (c[0] / c[1] if c[1] else None) for b, c in bins.items()} for e, bins in recall.items()}
     overall = {e: (sum(c[0] for c in bins.values()) / max(1, sum(c[1] for c in bins.values())))
