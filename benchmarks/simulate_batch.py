@@ -17,6 +17,7 @@ import dataclasses
 import functools
 
 from nanosysid import sim, worlds
+from nanosysid.vehicle import Vehicle
 
 SIZES = (1, 16, 256)
 DURATION = 5.0  # s
@@ -26,10 +27,11 @@ def main() -> dict[str, float]:
     torch.set_num_threads(1)
     cfg = sim.SimConfig.from_mapping({"trajectories": {"chirp": {"duration": DURATION}}})
     draws = worlds.draw(max(SIZES), seed=0)
-    specs = [sim.FlightSpec(trajectory="chirp", run=1, effects=w.effects, seed=w.seed, extra_wrench=w.extra_wrench,
+    vehicle = Vehicle()
+    specs = [sim.FlightSpec(trajectory="chirp", run=1, effects=w.effects, seed=w.seed, extra_wrench=w.extra_wrench(vehicle),
                             name=f"chirp_w{w.index}_run1") for w in draws]
     every = dataclasses.replace(specs[0], effects={e: 1.0 for e in sim.EFFECTS},
-                                extra_wrench=functools.partial(worlds.thrust_sag, s=1.0))
+                                extra_wrench=functools.partial(worlds.thrust_sag, s=1.0, k_f=vehicle.k_f))
     sim.simulate_flights([every], cfg=cfg, progress=False)  # warm-up: imports, first allocations
     out: dict[str, float] = {}
     for n in SIZES:

@@ -9,25 +9,32 @@ from omegaconf import DictConfig
 from nanosysid import worlds
 from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.effects import LIBRARY
+from nanosysid.errors import ConfigError
 from nanosysid.launcher import Launcher
 from nanosysid.report.campaign import summary_markdown, worlds_table
 from nanosysid.sim import EFFECTS
 from nanosysid.viz.campaign import confusion_figure, gap_figure, recall_figure
-from stages.common import plain, run_stage
+from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.campaign")
 
 
 def main(cfg: DictConfig) -> dict:
     """Draw ``campaign.worlds`` worlds from ``campaign.seed``, run the worlds check on
-    ``launcher``, and write into ``campaign.out_dir`` (replaced atomically): ``summary.json``
+    ``launcher`` with the configured vehicle and split, and write into ``campaign.out_dir`` (replaced atomically): ``summary.json``
     and ``summary.md``, ``worlds.parquet``, ``recall.png``, ``confusion.png``, ``gap.png``."""
     c = cfg.campaign
     n, chunk = int(c.worlds), int(c.chunk)  # positive whole numbers: the config's rules check them
     spec = Launcher.from_mapping(plain(cfg.launcher))
     draws = worlds.draw(n, int(c.seed), user_share=float(c.user_share), max_effects=int(c.max_effects))
-    rows = worlds.check(draws, launcher=spec, cfg=worlds.short_flights_config(float(c.duration)),
-                        horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
+    test = list(cfg.split.test)
+    if len(test) != 1:
+        raise ConfigError(f"split.test: {test}; the campaign scores one test trajectory per world")
+    calibration = list(cfg.identify.calibration or [])
+    setup = worlds.Setup(vehicle=vehicle_of(cfg), train=tuple(cfg.split.train), test=test[0],
+                         calibration=calibration[0] if calibration else None,
+                         sim=worlds.short_flights_config(float(c.duration)))
+    rows = worlds.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
     relevant = float(c.relevant)
     summary = worlds.summarize(rows, relevant=relevant)
     effects = sorted(EFFECTS)

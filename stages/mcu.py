@@ -11,7 +11,7 @@ from nanosysid import benchmark
 from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.errors import ConfigError, ExportError
 from nanosysid.export import mcu
-from nanosysid.report.tables import PAPER_COST
+from nanosysid.report.paper import PAPER_COST
 from stages.common import pick_flight, run_stage
 from stages.export import export_dir, exportable_of
 

@@ -3,7 +3,7 @@ noise, fitted with the folds and blocks discovery uses, many times over."""
 
 import numpy as np
 
-from nanosysid.discover import _half_width, _jackknife
+from nanosysid.discover.stats import half_width as _half_width, jackknife as _jackknife
 from nanosysid.discover.fit import Grams
 
 

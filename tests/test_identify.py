@@ -147,7 +147,7 @@ def test_the_campaign_judges_a_worlds_motor_lag_k_f_and_k_m():
     from nanosysid import worlds
 
     world = worlds.World(0, {"telemetry_delay": 2.0, "rotor_drag": 1.0}, seed=5)
-    flights, _ = worlds.simulate([world], worlds.short_flights_config(20.0))[0]
+    flights, _ = worlds.simulate([world])[0]
     assert sorted(f.trajectory for f in flights) == ["chirp", "melon", "random", "square", "yawsweep"]
     ident = worlds.identification(world, flights)
     assert ident["lag_true"] == pytest.approx(0.060) and abs(ident["lag_error"]) < 0.003

@@ -20,7 +20,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -37,7 +37,7 @@ from nanosysid.sim import world as nature
 from nanosysid.sim.simulator import collective_thrust_coefficient
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "World", "draw", "simulate", "judge", "check", "summarize",
+__all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "World", "Setup", "draw", "simulate", "judge", "check", "summarize",
            "identification", "summarize_identification", "library_truth", "coefficient_coverage",
            "short_flights_config", "STRENGTH_BINS"]
 
@@ -59,34 +59,31 @@ class _DescribedBy(Mapping[str, frozenset]):
 
 DESCRIBED_BY: Mapping[str, frozenset[str]] = _DescribedBy()
 STRENGTH_BINS = ((0.3, 0.7), (0.7, 1.5), (1.5, 3.0))
-TRAIN = ("square", "random", "chirp")
-TEST = "melon"
-CALIBRATION = "yawsweep"  # the yaw calibration flight of the identify step, no part of discovery's data
-K_F = 3.72e-8  # N s²/rad², the nominal thrust coefficient, for user effects that scale with thrust
 
 
 def _v_body(x):
     return so3.quat_rotate(so3.quat_conj(x[..., 6:10]), x[..., 3:6])
 
 
-# User-supplied effects that no library entry describes, each ``fn(t, x, om, om_dot, *, s)`` of
-# a strength ``s`` (a number, or a tensor broadcasting against the states' leading shape: the
-# simulator stacks the strengths of many worlds into one call).
-def thrust_sag(t, x, om, om_dot, *, s):
+# User-supplied effects that no library entry describes, each ``fn(t, x, om, om_dot, *, s, k_f)``
+# of a strength ``s`` on a vehicle of thrust coefficient ``k_f`` (N s^2/rad^2) (numbers, or
+# tensors broadcasting against the states' leading shape: the simulator stacks the keywords of
+# many worlds into one call).
+def thrust_sag(t, x, om, om_dot, *, s, k_f):
     """The battery sags: thrust falls by 4 % x s over 20 s of flight."""
     f = torch.zeros_like(x[..., :3])
-    f[..., 2] = -0.04 * s * K_F * (om ** 2).sum(-1) * torch.clamp(t, min=0.0) / 20.0
+    f[..., 2] = -0.04 * s * k_f * (om ** 2).sum(-1) * torch.clamp(t, min=0.0) / 20.0
     return f, torch.zeros_like(f)
 
 
-def height_roll(t, x, om, om_dot, *, s):
+def height_roll(t, x, om, om_dot, *, s, k_f):
     """A flow off the arena's wall: a roll torque growing with height."""
     tau = torch.zeros_like(x[..., :3])
     tau[..., 0] = 2e-5 * s * (x[..., 2] - 1.5)
     return torch.zeros_like(tau), tau
 
 
-def yaw_coupling(t, x, om, om_dot, *, s):
+def yaw_coupling(t, x, om, om_dot, *, s, k_f):
     """An airframe asymmetry: a yaw torque from the horizontal velocity's two components."""
     v = _v_body(x)
     tau = torch.zeros_like(v)
@@ -108,9 +105,11 @@ class World:
     user_strength: float = 0.0
     seed: int = 0
 
-    @property
-    def extra_wrench(self):
-        return None if self.user is None else functools.partial(OUT_OF_LIBRARY[self.user], s=self.user_strength)
+    def extra_wrench(self, vehicle: Vehicle):
+        """The user effect as the simulator's ``extra_wrench`` on ``vehicle`` (None: none)."""
+        if self.user is None:
+            return None
+        return functools.partial(OUT_OF_LIBRARY[self.user], s=self.user_strength, k_f=vehicle.k_f)
 
     @property
     def clean(self) -> bool:
@@ -148,24 +147,45 @@ def short_flights_config(duration: float = 20.0):
     }})
 
 
-def simulate(worlds: Sequence[World], cfg=None, *, progress: bool = False) -> dict[int, tuple[list, dict]]:
-    """Every world's flights (training ones, then the test one), and its test flight flown again
-    without each of its simulator effects (same seed: the same noise and realisations), all
-    worlds in one batch. A flight is named ``<trajectory>_w<world>_run1`` (the oracle finds its
-    realisation by it). Returns world index -> (flights, effect -> test flight without it)."""
-    cfg = cfg or short_flights_config()
+@dataclass(frozen=True)
+class Setup:
+    """What every world of a campaign shares: the nominal vehicle (the simulated body and
+    discovery's nominal model), the split of the trajectories (the configuration's ``split``),
+    the yaw calibration flight of the identify step (no part of discovery's data), and the
+    simulator's settings."""
+
+    vehicle: Vehicle = field(default_factory=Vehicle)
+    train: tuple[str, ...] = ("square", "random", "chirp")
+    test: str = "melon"
+    calibration: str | None = "yawsweep"
+    sim: SimConfig = field(default_factory=short_flights_config)
+
+    @property
+    def trajectories(self) -> tuple[str, ...]:
+        return (*self.train, self.test, *([self.calibration] if self.calibration else []))
+
+
+def simulate(worlds: Sequence[World], setup: Setup | None = None, *,
+             progress: bool = False) -> dict[int, tuple[list, dict]]:
+    """Every world's flights (training ones, the test one, the calibration one), and its test
+    flight flown again without each of its simulator effects (same seed: the same noise and
+    realisations), all worlds in one batch. A flight is named ``<trajectory>_w<world>_run1`` (the
+    oracle finds its realisation by it). Returns world index -> (flights, effect -> test flight
+    without it)."""
+    setup = setup or Setup()
     specs, keys = [], []
     for w in worlds:
-        for tr in (*TRAIN, TEST, CALIBRATION):
+        extra = w.extra_wrench(setup.vehicle)
+        for tr in setup.trajectories:
             specs.append(sim.FlightSpec(trajectory=tr, run=1, effects=w.effects, seed=w.seed,
-                                        extra_wrench=w.extra_wrench, name=f"{tr}_w{w.index}_run1"))
+                                        extra_wrench=extra, name=f"{tr}_w{w.index}_run1"))
             keys.append((w.index, None))
         for e in w.effects:
             rest = {k: v for k, v in w.effects.items() if k != e}
-            specs.append(sim.FlightSpec(trajectory=TEST, run=1, effects=rest, seed=w.seed,
-                                        extra_wrench=w.extra_wrench, name=f"{TEST}_w{w.index}_run1"))
+            specs.append(sim.FlightSpec(trajectory=setup.test, run=1, effects=rest, seed=w.seed,
+                                        extra_wrench=extra, name=f"{setup.test}_w{w.index}_run1"))
             keys.append((w.index, e))
-    flights = sim.simulate_flights(specs, cfg=cfg, progress=progress)
+    flights = sim.simulate_flights(specs, cfg=setup.sim, vehicle=setup.vehicle, progress=progress)
     out: dict[int, tuple[list, dict]] = {w.index: ([], {}) for w in worlds}
     for (i, e), f in zip(keys, flights):
         if e is None:
@@ -183,15 +203,22 @@ def _relative_gap(before, after, oracle) -> float | None:
     return float(sum((before[q] - after[q]) / before[q] for q in before) / gap)
 
 
-def judge(world: World, flights: Sequence, without: dict | None = None, *, horizon: int = 50) -> dict[str, Any]:
+def judge(world: World, flights: Sequence, without: dict | None = None, *, setup: Setup | None = None,
+          horizon: int = 50) -> dict[str, Any]:
     """Discovery on one world's flights, and its verdicts scored against the world; ``without``
-    (effect -> the test flight flown without it) gives each effect's impact on the nominal SimErr."""
-    train = [f for f in flights if f.trajectory in TRAIN]
-    test = [f for f in flights if f.trajectory == TEST]
-    ident = identification(world, flights)
-    oracle = sim.oracle(world.effects, seed=world.seed, extra_wrench=world.extra_wrench)
+    (effect -> the test flight flown without it) gives each effect's impact on the nominal SimErr.
+    Discovery's nominal model is the setup's vehicle with k_F and k_M identified on the training
+    flights."""
+    setup = setup or Setup()
+    train = [f for f in flights if f.trajectory in setup.train]
+    test = [f for f in flights if f.trajectory == setup.test]
+    ident = identification(world, flights, setup)
+    extra = world.extra_wrench(setup.vehicle)
+    oracle = sim.oracle(world.effects, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra)
     try:
-        r = discover.run(train, test, oracle=oracle, sindy=True, analysis=False, horizon=horizon)
+        thrust, yaw = identify.identify(train, setup.vehicle)
+        nominal = dataclasses.replace(setup.vehicle, k_f=thrust.coef, k_m=yaw.coef)
+        r = discover.run(train, test, vehicle=nominal, oracle=oracle, sindy=True, analysis=False, horizon=horizon)
     except PredictionError as e:  # the augmented model diverges on the test flight: a failure of discovery
         return {"world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
                 "user_strength": world.user_strength, "error": str(e), "identify": ident}
@@ -204,8 +231,8 @@ def judge(world: World, flights: Sequence, without: dict | None = None, *, horiz
     # the gap a model of the state can close: to the oracle that knows every effect but the
     # time-varying ones (turbulence, the thrust fluctuation)
     state = nature.state_effects(world.effects)
-    reachable = benchmark.evaluate(sim.oracle(state, seed=world.seed, extra_wrench=world.extra_wrench), test,
-                                   horizon=horizon).simerr if state != world.effects else r.oracle.simerr
+    reachable = benchmark.evaluate(sim.oracle(state, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra),
+                                   test, horizon=horizon).simerr if state != world.effects else r.oracle.simerr
     named = [f.name for f in r.findings if f.verdict == "named"]
     ambiguous = [list(f.alternatives) for f in r.findings if f.verdict == "ambiguous"]
     described = set().union(*(DESCRIBED_BY[e] for e in world.effects)) if world.effects else set()
@@ -224,16 +251,16 @@ def judge(world: World, flights: Sequence, without: dict | None = None, *, horiz
         "sindy_terms": len(r.sindy["terms"]),
         "gap_share": float(sum((r.before.simerr[q] - reachable[q]) / r.before.simerr[q] for q in r.before.simerr) / 4),
         "identify": ident,
-        "coverage": coefficient_coverage(world, r.findings),
+        "coverage": coefficient_coverage(world, r.findings, setup.vehicle),
     }
 
 
-def library_truth(effects: dict[str, float]) -> dict[str, dict[str, float]]:
+def library_truth(effects: dict[str, float], vehicle: Vehicle) -> dict[str, dict[str, float]]:
     """The world's truth in the parametrisation of the library entries that describe it one to
     one (the judge's translation, written from the world's constants): library entry ->
     coefficient name -> value. The drags' entries have other forms than the world's rotor and
     airframe drag and are left out."""
-    vehicle, out = Vehicle(), {}
+    out = {}
     for effect, strength in effects.items():
         truth = nature.REGISTRY[effect].truth
         if truth is not None:
@@ -242,10 +269,10 @@ def library_truth(effects: dict[str, float]) -> dict[str, dict[str, float]]:
     return out
 
 
-def coefficient_coverage(world: World, findings: Sequence) -> list[dict[str, Any]]:
+def coefficient_coverage(world: World, findings: Sequence, vehicle: Vehicle) -> list[dict[str, Any]]:
     """For every named finding whose entry describes one of the world's effects one to one
     (:func:`library_truth`), each coefficient's truth against its 95 % interval."""
-    truth = library_truth(world.effects)
+    truth = library_truth(world.effects, vehicle)
     out = []
     for f in findings:
         if f.verdict != "named" or f.name not in truth:
@@ -257,13 +284,14 @@ def coefficient_coverage(world: World, findings: Sequence) -> list[dict[str, Any
     return out
 
 
-def identification(world: World, flights: Sequence) -> dict[str, Any]:
+def identification(world: World, flights: Sequence, setup: Setup | None = None) -> dict[str, Any]:
     """The sync and identify steps on one world's flights against the world's truth: the motor
     telemetry's lag (the transients of all its flights, one session), then, with the rotor speeds
     moved by it, k_F (least squares on the training flights) and k_M (instrumental variables on
     the calibration flight; the paper's least squares on the training flights beside). Errors
     relative to the truth, and whether each 95 % interval covers it; k_M counts as identifiable
     where the world's inertia is the nominal one (the gyro's torque is read with it)."""
+    setup = setup or Setup()
     cfg = SyncConfig()
     evidence = [motor_lag_evidence(f.name, pd.DataFrame({"t_src": f.t, "az": f.extra["az_body"]}),
                                    pd.DataFrame({"t_src": f.t, **{f"m{i + 1}": f.u[:, i] for i in range(4)}}), cfg)
@@ -274,11 +302,11 @@ def identification(world: World, flights: Sequence) -> dict[str, Any]:
     def aligned(f):
         return dataclasses.replace(f, u=np.column_stack([np.interp(f.t + lag.value, f.t, f.u[:, i]) for i in range(4)]))
 
-    train = [aligned(f) for f in flights if f.trajectory in TRAIN]
-    cal = [aligned(f) for f in flights if f.trajectory == CALIBRATION]
-    vehicle = Vehicle()
+    train = [aligned(f) for f in flights if f.trajectory in setup.train]
+    cal = [aligned(f) for f in flights if f.trajectory == setup.calibration]
+    vehicle = setup.vehicle
     thrust = identify.fit_thrust(train, vehicle)
-    k_f_target = collective_thrust_coefficient([f for f in flights if f.trajectory in TRAIN])
+    k_f_target = collective_thrust_coefficient([f for f in flights if f.trajectory in setup.train])
     out: dict[str, Any] = {
         "lag_true": truth_lag, "lag": lag.value, "lag_error": lag.value - truth_lag, "lag_events": lag.events,
         "lag_covered": None if lag.interval[0] is None else bool(lag.interval[0] <= truth_lag <= lag.interval[1]),
@@ -294,19 +322,19 @@ def identification(world: World, flights: Sequence) -> dict[str, Any]:
     return out
 
 
-def _check_chunk(worlds: Sequence[World], cfg, horizon: int) -> list[dict[str, Any]]:
+def _check_chunk(worlds: Sequence[World], setup: Setup, horizon: int) -> list[dict[str, Any]]:
     """One task of the launcher: a few worlds simulated in one batch, then judged one by one."""
-    flights = simulate(worlds, cfg)
-    return [judge(w, *flights[w.index], horizon=horizon) for w in worlds]
+    flights = simulate(worlds, setup)
+    return [judge(w, *flights[w.index], setup=setup, horizon=horizon) for w in worlds]
 
 
-def check(worlds: Sequence[World], *, launcher=None, cfg=None, horizon: int = 50, chunk: int = 4,
+def check(worlds: Sequence[World], *, launcher=None, setup: Setup | None = None, horizon: int = 50, chunk: int = 4,
           progress: bool = True) -> list[dict[str, Any]]:
     """Simulate and judge every world, ``chunk`` worlds to a task of ``launcher``
     (:class:`nanosysid.launcher.Launcher`; None: one process here). The rows come back in the
     worlds' order, the same whatever the launcher and its number of workers."""
-    cfg = cfg or short_flights_config()
-    tasks = [(list(worlds[s:s + chunk]), cfg, horizon) for s in range(0, len(worlds), chunk)]
+    setup = setup or Setup()
+    tasks = [(list(worlds[s:s + chunk]), setup, horizon) for s in range(0, len(worlds), chunk)]
     parts = map_tasks(_check_chunk, tasks, launcher, progress=progress, desc=f"worlds ({chunk} a task)",
                       name="nanosysid-campaign")
     return [row for part in parts for row in part]

@@ -6,7 +6,6 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 
 from nanosysid.dataio import atomic_file, json_text
 from nanosysid.discover import CHANNELS, LIBRARY, VERDICTS, DiscoveryResult
@@ -50,7 +49,7 @@ def result_dict(result: DiscoveryResult) -> dict[str, Any]:
         "alpha": result.alpha,
         "floor": result.floor,
         "noise_floor": dict(zip(CHANNELS, (float(x) for x in result.noise))),
-        "rounds": result.rounds,
+        "rounds": [[c.row() for c in candidates] for candidates in result.rounds],
         "vehicle": dataclasses.asdict(result.vehicle),
         "simerr": {"nominal": result.before.simerr, "discovered": result.after.simerr,
                    **({"oracle": result.oracle.simerr} if result.oracle else {}),
@@ -257,10 +256,10 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
           "inside each fold. A coefficient's 95 % interval is a jackknife over the folds (each fold's fit leaves "
           "that fold out) with Student's t for their number; a named entry's stability is the share of the folds "
           "on which it beats every other eligible candidate of its round, held out.", ""]
-    for i, table in enumerate(result.rounds, 1):
+    for i, candidates in enumerate(result.rounds, 1):
         L += [f"Round {i}:", "", "| candidate | held-out gain | size [noise floors] | z | p (adjusted) | blocks improved | "
               "plausible | eligible |", "|---|---|---|---|---|---|---|---|"]
-        for r in table:
+        for r in (c.row() for c in candidates):
             L.append(f"| {r['candidate']} | {100 * r['heldout_gain']:.3f} % | {r['size']:.2f} | {r['z']:.1f} | {r['p']:.2g} | "
                      f"{r['blocks_improved']} / {r['blocks']} | {'yes' if r['plausible'] else 'no'} | "
                      f"{'yes' if r['eligible'] else 'no'} |")

@@ -16,8 +16,18 @@ from typing import Any, Mapping, Sequence
 from nanosysid.benchmark import Scores
 from nanosysid.metrics import QUANTITIES
 
-__all__ = ["PAPER_STATS", "PAPER_RESULTS", "PAPER_MODELS", "PAPER_IDENTIFIED", "Comparison", "compare_results",
+__all__ = ["PAPER_COST", "PAPER_STATS", "PAPER_RESULTS", "PAPER_MODELS", "PAPER_IDENTIFIED", "Comparison", "compare_results",
            "compare_identification", "results_markdown", "identification_markdown"]
+
+# The paper's table of model costs: parameters [k], compute [kFLOPs], T_inf on the STM32 [ms].
+PAPER_COST = {
+    "naive": {"params_k": None, "kflops": None, "t_inf_ms": None},
+    "physics": {"params_k": None, "kflops": 0.8, "t_inf_ms": 1.79},
+    "residual": {"params_k": 18.5, "kflops": 18.2, "t_inf_ms": 1.03},
+    "phys_res": {"params_k": 18.5, "kflops": 18.2, "t_inf_ms": 2.82},
+    "lstm": {"params_k": 24.7, "kflops": 25.1, "t_inf_ms": 2.09},
+}
+
 
 # Paper, table "Benchmark statistics for real quadrotor trajectories" (averaged across runs).
 PAPER_STATS = {

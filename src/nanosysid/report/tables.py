@@ -12,23 +12,14 @@ import numpy as np
 from nanosysid.benchmark import Scores
 from nanosysid.errors import DataError
 from nanosysid.metrics import QUANTITIES, UNITS
+from nanosysid.report.paper import PAPER_COST
 
 __all__ = ["results_table_md", "results_table_tex", "cost_table_md", "cost_table_tex", "load_scores",
-           "load_costs", "benchmark_markdown", "mae_csv", "PAPER_COST"]
+           "load_costs", "benchmark_markdown", "mae_csv"]
 
 _LABEL = {"p": "MAE_p", "v": "MAE_v", "R": "MAE_R", "w": "MAE_ω"}
 _TEX_LABEL = {"p": r"\mathrm{MAE}_{p,h}", "v": r"\mathrm{MAE}_{v,h}", "R": r"\mathrm{MAE}_{R,h}",
               "w": r"\mathrm{MAE}_{\omega,h}"}
-
-# The paper's table of model costs: parameters [k], compute [kFLOPs], T_inf on the STM32 [ms].
-PAPER_COST = {
-    "naive": {"params_k": None, "kflops": None, "t_inf_ms": None},
-    "physics": {"params_k": None, "kflops": 0.8, "t_inf_ms": 1.79},
-    "residual": {"params_k": 18.5, "kflops": 18.2, "t_inf_ms": 1.03},
-    "phys_res": {"params_k": 18.5, "kflops": 18.2, "t_inf_ms": 2.82},
-    "lstm": {"params_k": 24.7, "kflops": 25.1, "t_inf_ms": 2.09},
-}
-
 
 def _results_cells(rows: Mapping[str, Scores], horizons: Sequence[int], reference: Sequence[str]):
     """Values ``(models, columns)``, which of them is the best of its column, and which rows

@@ -1,0 +1,170 @@
+"""Discovery's records: a candidate tried in a round, a pick of the selection, a finding with its
+verdict, and the result of a run."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from nanosysid import benchmark
+from nanosysid.discover.model import AugmentedPredictor
+from nanosysid.effects import LIBRARY
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["VERDICTS", "STATELESS", "Candidate", "Pick", "Finding", "DiscoveryResult"]
+
+VERDICTS = ("named", "ambiguous", "unnamed", "not a function of the state")
+STATELESS = VERDICTS[3]
+
+
+@dataclass
+class Candidate:
+    """One library entry added to the chosen ones in a round, and the test of its gain.
+
+    Attributes:
+        name: The library entry.
+        sse: Held-out weighted sum of squares per block ``(B,)`` with it added.
+        thetas: The coefficients fitted without each fold ``(folds, P)`` (the delay: each
+            fold's delay ``(folds, 1)``).
+        gains: The held-out gain per block over the round's start ``(B,)``.
+        z, p: The one-sided signed-rank test of the gains (p Bonferroni-adjusted).
+        size: The root of its held-out gain per sample, in noise floors.
+        heldout_gain: Its gain as a share of the nominal residual's weighted sum of squares.
+        plausible: No physical sign or bound is violated.
+        eligible: Significant, large enough and plausible.
+    """
+
+    name: str
+    sse: np.ndarray
+    thetas: np.ndarray
+    gains: np.ndarray
+    z: float
+    p: float
+    size: float
+    heldout_gain: float
+    plausible: bool
+    eligible: bool
+
+    @property
+    def blocks_improved(self) -> int:
+        return int((self.gains > 0).sum())
+
+    @property
+    def blocks(self) -> int:
+        return int(len(self.gains))
+
+    def row(self) -> dict[str, Any]:
+        """The round's table row of the report."""
+        return {"candidate": self.name, "heldout_gain": self.heldout_gain, "size": self.size, "z": self.z,
+                "p": self.p, "blocks_improved": self.blocks_improved, "blocks": self.blocks,
+                "plausible": self.plausible, "eligible": self.eligible}
+
+
+@dataclass
+class Pick:
+    """A candidate the selection chose.
+
+    Attributes:
+        candidate: The chosen candidate of its round.
+        round: The round (from 1).
+        alternatives: Eligible entries on the same channels it is not significantly better than.
+        competitors: The other eligible candidates of its round (an implausible or insignificant
+            candidate is no rival, however much it would fit).
+        generic_share: Its held-out gain over the generic fit's on the same disagreement (set by
+            the pruning; None for the delay).
+    """
+
+    candidate: Candidate
+    round: int
+    alternatives: list[str]
+    competitors: list[str]
+    generic_share: float | None = None
+
+    @property
+    def name(self) -> str:
+        return self.candidate.name
+
+    def evidence(self) -> dict[str, Any]:
+        c = self.candidate
+        return {"round": self.round, "heldout_gain": c.heldout_gain, "size": c.size, "z": c.z, "p": c.p,
+                "blocks_improved": c.blocks_improved, "blocks": c.blocks}
+
+
+@dataclass
+class Finding:
+    """One disagreement above the noise floor and its verdict.
+
+    Attributes:
+        verdict: ``"named"``, ``"ambiguous"`` or ``"unnamed"``.
+        name: The library entry named (verdict ``"named"``), else None.
+        alternatives: Verdict ``"ambiguous"``: the entries that explain it equally well, the one
+            the augmented model uses first.
+        channels: The body-wrench channels it acts on (of :data:`CHANNELS`).
+        params: Coefficient name (with unit) -> fitted value: of the entry (named), of the entry
+            the augmented model uses (ambiguous), of the generic terms kept (unnamed).
+        evidence: ``heldout_gain`` (share of the nominal residual's weighted sum of squares,
+            held out), ``z``, ``p`` (Bonferroni-adjusted), ``blocks_improved`` / ``blocks``,
+            ``stderr`` (jackknife over the folds) and ``ci`` per coefficient (95 %: the range
+            its value takes when each plausible rival joins the fit, widened by the folds'
+            interval, Student's t with one degree of freedom fewer than folds), ``rival_range``,
+            ``stability`` (share of the held-out folds on which it beats every other eligible
+            candidate of its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
+            ``band``, and ``added`` False where its terms would make the training rollouts
+            diverge (they are then left out of the augmented model).
+    """
+
+    verdict: str
+    name: str | None
+    channels: tuple[str, ...]
+    params: dict[str, float]
+    evidence: dict[str, Any]
+    alternatives: tuple[str, ...] = ()
+
+    @property
+    def entry(self) -> str | None:
+        """The library entry the augmented model uses for it (None: generic terms)."""
+        return self.name or (self.alternatives[0] if self.alternatives else None)
+
+    @property
+    def touches(self) -> tuple[str, ...]:
+        if self.entry is not None:
+            return LIBRARY[self.entry].touches
+        return tuple(dict.fromkeys(q for c in self.channels for q in (("p", "v") if c.startswith("F") else ("R", "w"))))
+
+
+@dataclass
+class DiscoveryResult:
+    """What :func:`nanosysid.discover.run` found, and the benchmark scores on the test flights.
+
+    ``rounds`` holds every round's candidates, best held-out gain first."""
+
+    findings: list[Finding]
+    before: benchmark.Scores
+    after: benchmark.Scores
+    model: AugmentedPredictor
+    nominal: AugmentedPredictor
+    vehicle: Vehicle
+    rounds: list[list[Candidate]]
+    alpha: float
+    floor: float
+    noise: np.ndarray
+    oracle: benchmark.Scores | None = None
+    sindy: dict[str, Any] | None = None
+    analysis: dict[str, Any] = field(default_factory=dict)
+    limit: benchmark.Scores | None = None
+
+    @property
+    def found(self) -> list[Finding]:
+        """The findings with verdict ``"named"``."""
+        return [f for f in self.findings if f.verdict == "named"]
+
+    @property
+    def name(self) -> str:
+        parts = [f.entry for f in self.findings if f.entry] + (["terms"] if self.unnamed else [])
+        return "+".join(["physics"] + parts)
+
+    @property
+    def unnamed(self) -> list[Finding]:
+        return [f for f in self.findings if f.verdict == "unnamed"]

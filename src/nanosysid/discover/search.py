@@ -1,0 +1,151 @@
+"""Discovery's regression data: every training flight's measured wrench, regressors and noise
+floor (:mod:`nanosysid.discover.fit`), cut into blocks and folds, with the normal equations per
+rotor-speed delay built once and shared by every phase."""
+
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from nanosysid.dataio import Flight
+from nanosysid.discover import generic
+from nanosysid.discover.fit import COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench, noise_floor
+from nanosysid.effects import CHANNELS, DELAY, NOMINAL, entry, split_coefficients
+from nanosysid.errors import DataError
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["Search", "true_torque_grams", "channels_of"]
+
+
+class Search:
+    """Regression data and block normal equations per delay, built once and shared by every round."""
+
+    def __init__(self, flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int, block: float,
+                 folds: int) -> None:
+        self.flights, self.vehicle, self.window, self.order = list(flights), vehicle, window, order
+        self.measured = [measured_wrench(f, vehicle, window, order) for f in self.flights]
+        self.noise = noise_floor(self.flights, vehicle, window, order)
+        self.weights = 1.0 / np.maximum(self.noise, 1e-12)
+        self._data: dict[float, list[FlightData]] = {}
+        self._grams: dict[float, Grams] = {}
+        self._terms: dict[float, tuple[generic.TermLibrary, np.ndarray]] = {}
+        dt = float(np.median(np.diff(self.flights[0].t)))
+        self.blocks = block_ids(self.data(0.0), max(1, int(round(block / dt))))
+        n_blocks = int(self.blocks.max()) + 1
+        if n_blocks < 4:
+            raise DataError(f"discover: the training flights make {n_blocks} blocks of {block:g} s; at least 4 are "
+                            "needed to hold some out (give longer flights or a shorter discover.block)")
+        self.folds = min(folds, n_blocks // 2)  # short data: fewer, larger folds
+        self.offsets = {}
+        k = 0
+        for name in COLUMN_ENTRIES:
+            P = entry(name).n_columns
+            self.offsets[name] = np.arange(k, k + P)
+            k += P
+
+    def data(self, delay: float) -> list[FlightData]:
+        key = round(float(delay), 6)
+        if key not in self._data:
+            self._data[key] = [flight_data(f, self.vehicle, key, window=self.window, order=self.order, measured=m)
+                               for f, m in zip(self.flights, self.measured)]
+        return self._data[key]
+
+    def grams(self, delay: float) -> Grams:
+        key = round(float(delay), 6)
+        if key not in self._grams:
+            d = self.data(key)
+            X = np.concatenate([np.concatenate([fd.features[n] for n in COLUMN_ENTRIES], axis=-1) for fd in d])
+            y = np.concatenate([fd.r for fd in d])
+            self._grams[key] = Grams(X, y, self.weights, self.blocks, self.folds)
+        return self._grams[key]
+
+    def terms(self, delay: float) -> tuple[generic.TermLibrary, np.ndarray]:
+        """The generic terms' library and their values on every sample ``(N, M)``."""
+        key = round(float(delay), 6)
+        if key not in self._terms:
+            signals = np.concatenate([fd.terms for fd in self.data(key)])
+            lib = generic.TermLibrary(signals)
+            self._terms[key] = (lib, lib(signals))
+        return self._terms[key]
+
+    def touched(self, name: str) -> set[int]:
+        """The channels an entry's columns act on."""
+        if name == DELAY.name:
+            return set(range(6))
+        f = self.data(0.0)[0].features[name]
+        return set(np.flatnonzero(np.any(f != 0, axis=(0, 2))).tolist())
+
+    def cols(self, names: Sequence[str]) -> np.ndarray:
+        return np.concatenate([self.offsets[n] for n in [NOMINAL.name, *names]])
+
+    def residual(self, names: Sequence[str], delay: float) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted residual left by ``names`` fitted on every block ``(N, 6)``, and the coefficients."""
+        g = self.grams(delay)
+        cols = self.cols(names)
+        theta = g.solve(cols)
+        d = self.data(delay)
+        X = np.concatenate([np.concatenate([fd.features[n] for n in [NOMINAL.name, *names]], axis=-1) for fd in d])
+        y = np.concatenate([fd.r for fd in d])
+        return (y - X @ theta) * self.weights, theta
+
+    def nested_delay(self, names: Sequence[str], delays: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
+        """Held-out SSE per block with the delay chosen on the other folds, and each fold's delay."""
+        cols = self.cols(names)
+        fits = {d: self.grams(d) for d in delays}
+        out, chosen = np.zeros(int(self.blocks.max()) + 1), np.zeros(self.folds)
+        for k in range(self.folds):
+            train = np.flatnonzero(fits[delays[0]].fold != k)
+            test = np.flatnonzero(fits[delays[0]].fold == k)
+            best, best_sse, best_theta = None, np.inf, None
+            for d, g in fits.items():
+                th = g.solve(cols, train)
+                s = g.sse(cols, th, train).sum()
+                if s < best_sse:
+                    best, best_sse, best_theta = d, s, th
+            chosen[k] = best
+            out[test] = fits[best].sse(cols, best_theta, test)
+        return out, chosen
+
+
+def true_torque_grams(search: Search, g: Grams, chosen: Sequence[str], cols: np.ndarray, vehicle: Vehicle,
+                       iterations: int = 8) -> Grams:
+    """The normal equations in which every torque coefficient is in the true body's units.
+
+    The measured torque is ``J dw/dt + w x Jw`` with the *nominal* J. Where the body's inertia
+    is ``J + dJ``, every torque the rotors and the effects exert shows up in it shrunk by
+    ``J / (J + dJ)`` per axis: a k_M refit or a rotor inertia fitted there is the true one
+    times that ratio, and one rotor inertia cannot serve the roll/pitch gyroscopic torque and
+    the yaw reaction at once when the ratios differ by axis. The augmented model integrates
+    with ``J + dJ``, so the torque columns of every entry but the inertia correction itself are
+    scaled by ``J / (J + dJ)`` and the fit is repeated with the ``dJ`` it finds (a fixed point,
+    reached in a few rounds): the coefficients are then the true body's, one parametrisation
+    for the fit and the model.
+    """
+    if "inertia" not in chosen:
+        return g
+    J = np.asarray(vehicle.inertia)
+    own = np.concatenate([search.offsets[n] for n in [NOMINAL.name, *chosen] if n == "inertia"])
+    scale = np.ones((6, g.P))
+    fitted = g
+    for _ in range(iterations):
+        c = np.array(split_coefficients([NOMINAL.name, *chosen], fitted.solve(cols))["inertia"])
+        ratio = np.clip((J - c) / J, 0.2, 5.0)  # J / (J + dJ), with dJ = c J / (J - c)
+        new = np.ones((6, g.P))
+        new[3:, :] = ratio[:, None]
+        new[3:, own] = 1.0
+        if np.allclose(new, scale, rtol=1e-6):
+            break
+        scale = new
+        fitted = g.scaled(scale)
+    return fitted
+
+
+def channels_of(search: Search, name: str, theta: np.ndarray, delay: float) -> tuple[str, ...]:
+    """Channels where an entry's fitted wrench carries at least a fifth of its largest (in noise units)."""
+    X = np.concatenate([fd.features[name] for fd in search.data(delay)])
+    w = (X @ theta) * search.weights
+    rms = np.sqrt((w ** 2).mean(axis=0))
+    if rms.max() <= 0:
+        return ()
+    return tuple(CHANNELS[c] for c in np.flatnonzero(rms >= 0.2 * rms.max()))

@@ -1,0 +1,153 @@
+"""Discovery's candidate search: forward selection over the library, one round at a time, and
+the pruning of the entries that only correlate with a disagreement outside the library.
+
+Each round adds every candidate not yet chosen to the chosen ones and measures its held-out
+gain block by block; the one-sided signed-rank test (Bonferroni over the round's candidates),
+its size in noise floors and its physical signs make it eligible; the eligible candidate with the
+largest gain is chosen, and the eligible ones on its channels that it does not beat
+significantly are its alternatives. The rotor-speed delay is searched over a grid nested inside
+the folds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from nanosysid.discover import generic
+from nanosysid.discover.records import Candidate, Pick
+from nanosysid.discover.search import Search, channels_of
+from nanosysid.discover.stats import jackknife, pvalue
+from nanosysid.effects import CHANNELS, DELAY, LIBRARY, entry
+
+__all__ = ["Selection", "select", "prune"]
+
+
+@dataclass
+class Selection:
+    """The selection's outcome: every round's candidates (best held-out gain first), the picks
+    in order, the entries chosen and the rotor-speed delay (s)."""
+
+    rounds: list[list[Candidate]]
+    picks: list[Pick]
+    chosen: list[str]
+    delay: float
+
+
+def _round(search: Search, chosen: list[str], delay: float, current: np.ndarray, delays: Sequence[float], *,
+           alpha: float, floor: float, total: float) -> list[Candidate]:
+    """Every candidate not yet chosen, added to ``chosen`` and tested against ``current`` (the
+    held-out sum of squares per block without it)."""
+    tried: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+    g = search.grams(delay)
+    for name, c in LIBRARY.items():
+        if name in chosen or c is DELAY:
+            continue
+        tried[name] = g.heldout(search.cols(chosen + [name]))
+    if delay == 0.0 and delays:
+        sse, per_fold = search.nested_delay(chosen, (0.0,) + delays)
+        tried[DELAY.name] = (sse, per_fold[:, None])
+    K, n_samples = len(tried), len(search.blocks)
+    out = []
+    for name, (sse, thetas) in tried.items():
+        gains = current - sse
+        z, p = pvalue(gains)
+        size = float(np.sqrt(max(gains.sum(), 0.0) / n_samples))
+        plausible = _signs_ok(name, thetas, search, chosen)
+        p = min(1.0, p * K)
+        out.append(Candidate(name, sse, thetas, gains, z, p, size, float(gains.sum() / total), bool(plausible),
+                             bool(p <= alpha and size >= floor and plausible)))
+    return out
+
+
+def select(search: Search, delays: Sequence[float], *, alpha: float, floor: float, total: float) -> Selection:
+    """Forward selection until no candidate is eligible."""
+    chosen: list[str] = []
+    delay = 0.0
+    current, _ = search.grams(0.0).heldout(search.cols(chosen))
+    rounds: list[list[Candidate]] = []
+    picks: list[Pick] = []
+    while True:
+        candidates = _round(search, chosen, delay, current, delays, alpha=alpha, floor=floor, total=total)
+        rounds.append(sorted(candidates, key=lambda c: -c.heldout_gain))
+        eligible = [c for c in candidates if c.eligible]
+        if not eligible:
+            break
+        best = max(eligible, key=lambda c: c.gains.sum())
+        # the alternatives: eligible entries acting on the same channels that do not explain
+        # significantly less (the delay acts on every channel, through the rotor speeds)
+        mine = search.touched(best.name)
+        alts = [c.name for c in eligible if c is not best and search.touched(c.name) & mine
+                and pvalue(c.sse - best.sse)[1] > alpha]
+        picks.append(Pick(best, len(rounds), alts, [c.name for c in eligible if c is not best]))
+        if best.name == DELAY.name:
+            delay = _best_delay(search, chosen, (0.0,) + tuple(delays))
+            current, _ = search.grams(delay).heldout(search.cols(chosen))
+        else:
+            chosen.append(best.name)
+            current = best.sse
+    return Selection(rounds, picks, chosen, delay)
+
+
+def prune(search: Search, selection: Selection, share: float) -> Selection:
+    """Keep the entries that explain at least ``share`` of what the generic sparse fit captures
+    of the same disagreement (the delay stays); the delay is dropped with it."""
+    cache: dict[tuple, np.ndarray] = {}
+    kept = []
+    for pk in selection.picks:
+        if pk.name == DELAY.name:
+            kept.append(pk)
+            continue
+        pk.generic_share = _explains(search, selection.chosen, pk.name, selection.delay, cache)
+        if pk.generic_share >= share:
+            kept.append(pk)
+    chosen = [pk.name for pk in kept if pk.name != DELAY.name]
+    delay = selection.delay if any(pk.name == DELAY.name for pk in kept) else 0.0
+    return Selection(selection.rounds, kept, chosen, delay)
+
+
+def _signs_ok(name: str, thetas: np.ndarray, search: Search, chosen: list[str]) -> bool:
+    """No coefficient with a physical sign is negative by more than two standard errors, and a
+    correction stays within its bound of the nominal value."""
+    c = LIBRARY[name]
+    if c is DELAY:
+        return True
+    k = len(search.cols(chosen))  # the candidate's columns come last
+    th = thetas[:, k:]
+    mean, se = th.mean(axis=0), jackknife(th)
+    if any(s > 0 and m < -2 * e for s, m, e in zip(c.signs, mean, se)):
+        return False
+    if c.bound is not None:
+        values = c.values(mean, search.vehicle)
+        if any(not np.isfinite(x) or abs(x) > c.bound * abs(n) for x, n in zip(values, c.nominal(search.vehicle))):
+            return False
+    return True
+
+
+def _best_delay(search: Search, chosen: list[str], delays: Sequence[float]) -> float:
+    cols = search.cols(chosen)
+    sse = {d: search.grams(d).sse(cols, search.grams(d).solve(cols)).sum() for d in delays}
+    return min(sse, key=sse.get)
+
+
+def _explains(search: Search, chosen: list[str], name: str, delay: float, cache: dict) -> float:
+    """Held-out gain of ``name`` added last, over the generic fit's on the residual without it,
+    on the channels it acts on."""
+    others = [n for n in chosen if n != name]
+    g = search.grams(delay)
+    base, _ = g.heldout(search.cols(others), per_channel=True)
+    mine, _ = g.heldout(search.cols(others + [name]), per_channel=True)
+    own = g.solve(search.cols(others + [name]))[-entry(name).n_columns:]
+    channels = [CHANNELS.index(c) for c in channels_of(search, name, own, delay)]
+    if not channels:
+        return 0.0
+    gain = float((base - mine)[:, channels].sum())
+    key = (tuple(others), delay)
+    if key not in cache:
+        resid, _ = search.residual(others, delay)
+        _, terms = search.terms(delay)
+        cache[key] = generic.heldout_gain(terms, resid, search.blocks, g.fold)
+    ggen = float(np.clip(cache[key][:, channels].sum(), 0, None))
+    return 1.0 if ggen <= 0 else gain / ggen

@@ -1,0 +1,226 @@
+"""Discovery's verdicts and intervals: the chosen entries' coefficients fitted on every block in
+the true body's units, each pick's finding (named, or ambiguous among its alternatives) with its
+95 % intervals and stability, the generic sparse fit of what remains (unnamed findings), and
+what no function of the state explains."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import numpy as np
+
+from nanosysid.discover import generic
+from nanosysid.discover.records import STATELESS, Finding
+from nanosysid.discover.search import Search, channels_of, true_torque_grams
+from nanosysid.discover.select import Selection
+from nanosysid.discover.stats import half_width, jackknife, pvalue
+from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, split_coefficients
+from nanosysid.vehicle import Vehicle
+
+__all__ = ["Coefficients", "coefficients", "named", "Remainder", "unnamed", "stateless"]
+
+
+@dataclass
+class Coefficients:
+    """The chosen entries fitted on every block.
+
+    Attributes:
+        names: The nominal correction (k_F, k_M) and the chosen entries, in column order.
+        coef: Entry -> its coefficients, in the true body's units.
+        per_fold: The same, fitted without each fold.
+        measured: The coefficients of every column in the measured torque's units (the
+            disagreement analysis reads the residual these leave).
+        rivals: The same fit with each plausible rival added: entry -> coefficients, one per rival.
+    """
+
+    names: list[str]
+    coef: dict[str, list[float]]
+    per_fold: list[dict[str, list[float]]]
+    measured: np.ndarray
+    rivals: list[dict[str, list[float]]]
+
+
+def coefficients(search: Search, selection: Selection, vehicle: Vehicle) -> Coefficients:
+    """The final fit of the chosen entries, the fits without each fold, and the fits with each
+    plausible rival (the eligible candidates the selection passed over): a coefficient that
+    moves when a rival joins is uncertain by that much beyond the folds' scatter (collinear or
+    misspecified columns bias it; the folds cannot show a bias)."""
+    chosen, delay = selection.chosen, selection.delay
+    g = search.grams(delay)
+    cols = search.cols(chosen)
+    measured = g.solve(cols)
+    g = true_torque_grams(search, g, chosen, cols, vehicle)
+    theta = g.solve(cols)
+    _, thetas = g.heldout(cols)
+    names = [NOMINAL.name, *chosen]
+    rivals = sorted({n for pk in selection.picks for n in pk.competitors + [pk.name]} - set(chosen) - {DELAY.name})
+    rival_coef = []
+    for n in rivals:
+        alt_cols = search.cols(chosen + [n])
+        alt_g = true_torque_grams(search, search.grams(delay), chosen + [n], alt_cols, vehicle)
+        rival_coef.append(split_coefficients(names + [n], alt_g.solve(alt_cols)))
+    return Coefficients(names, split_coefficients(names, theta), [split_coefficients(names, t) for t in thetas],
+                        measured, rival_coef)
+
+
+def named(search: Search, selection: Selection, fit: Coefficients, vehicle: Vehicle,
+          delays: Sequence[float]) -> list[Finding]:
+    """One finding per pick: named, or ambiguous where an alternative is not named later; with
+    each coefficient's 95 % interval (the rivals' range widened by the folds' jackknife interval)
+    and the pick's stability."""
+    chosen, delay = selection.chosen, selection.delay
+    findings: list[Finding] = []
+    named_later = set(chosen) | ({DELAY.name} if delay else set())
+    for pk in selection.picks:
+        name = pk.name
+        c = LIBRARY[name]
+        if c is DELAY:
+            params = {DELAY.params[0]: delay}
+            stderr = {DELAY.params[0]: _delay_stderr(search, chosen, (0.0,) + tuple(delays))}
+            channels = CHANNELS
+        else:
+            th = np.array(fit.coef[name])
+            params = dict(zip(c.params, c.values(th, vehicle)))
+            # jackknife of the physical values themselves: the map from the columns' coefficients
+            # may be nonlinear (inertia) or mix them (rotor spread)
+            se = jackknife(np.array([c.values(fc[name], vehicle) for fc in fit.per_fold]))
+            stderr = dict(zip(c.params, (float(x) for x in se)))
+            channels = channels_of(search, name, th, delay)
+            spread = np.array([list(params.values())] + [c.values(rc[name], vehicle) for rc in fit.rivals])
+        alts = [a for a in pk.alternatives if a not in named_later]
+        ev = pk.evidence()
+        ev["stderr"] = stderr
+        half = {k: half_width(stderr[k], search.folds) for k in params}
+        if c is DELAY:
+            ev["ci"] = {k: (params[k] - half[k], params[k] + half[k]) for k in params}
+        else:
+            ev["rival_range"] = {k: (float(spread[:, i].min()), float(spread[:, i].max())) for i, k in enumerate(params)}
+            ev["ci"] = {k: (ev["rival_range"][k][0] - half[k], ev["rival_range"][k][1] + half[k]) for k in params}
+        ev["stability"] = _stability(search, chosen, name, pk.competitors, delay)
+        if pk.generic_share is not None:
+            ev["generic_share"] = pk.generic_share
+        if alts:
+            ev["used"] = name
+            ev["separate_by"] = {a: LIBRARY[a].excited_by for a in [name, *alts]}
+            findings.append(Finding("ambiguous", None, channels, params, ev, (name, *alts)))
+        else:
+            findings.append(Finding("named", name, channels, params, ev))
+    return findings
+
+
+@dataclass
+class Remainder:
+    """What the chosen entries leave, and the generic fit of it.
+
+    Attributes:
+        findings: The unnamed findings, one per channel the generic fit captures significantly.
+        terms: Their sparse terms: name -> coefficient (physical units), for the augmented model.
+        fits: Per such channel, its index and the terms' coefficients ``(M,)`` (physical units).
+        left: The weighted residual ``(N, 6)`` that neither the entries nor the terms explain.
+    """
+
+    findings: list[Finding]
+    terms: dict[str, float]
+    fits: list[tuple[int, np.ndarray]]
+    left: np.ndarray
+
+
+def unnamed(search: Search, selection: Selection, *, alpha: float, floor: float, total: float) -> Remainder:
+    """Channel by channel, the generic sparse fit of the residual the chosen entries leave: an
+    unnamed finding where it captures significantly more than nothing (Bonferroni over the six
+    channels) by at least ``floor`` noise floors."""
+    resid, _ = search.residual(selection.chosen, selection.delay)
+    lib, terms = search.terms(selection.delay)
+    gains = generic.heldout_gain(terms, resid, search.blocks, search.grams(selection.delay).fold)
+    n_samples = len(search.blocks)
+    out = Remainder([], {}, [], resid)
+    state_fit: dict[int, np.ndarray] = {}
+    for c in range(6):
+        z, p = pvalue(gains[:, c])
+        p = min(1.0, 6 * p)
+        size = float(np.sqrt(max(gains[:, c].sum(), 0.0) / n_samples))
+        if p > alpha or size < floor:
+            continue
+        coef_c = generic.sparse_fit(terms, resid[:, [c]])
+        raw, shown = generic.terms_of(coef_c, lib, [c], search.weights)
+        if not raw:
+            continue
+        state_fit[c] = terms @ coef_c[0]
+        out.terms.update(raw)
+        out.fits.append((c, coef_c[0] / search.weights[c]))
+        out.findings.append(Finding("unnamed", None, (CHANNELS[c],), shown, {
+            "heldout_gain": float(gains[:, c].sum() / total), "size": size, "z": z, "p": p,
+            "blocks_improved": int((gains[:, c] > 0).sum()), "blocks": int(len(gains))}))
+    # what neither an entry nor the generic terms of the state explain, channel by channel
+    out.left = resid - np.column_stack([state_fit.get(c, np.zeros(len(resid))) for c in range(6)])
+    return out
+
+
+def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, total: float) -> list[Finding]:
+    """The channels whose residual ``left`` (weighted: noise floors) stays above the noise after
+    the entries and the generic terms of the state: the one-sided Wilcoxon test that the blocks'
+    mean squares exceed 1 (the noise's), Bonferroni over the six channels, and a size of at least
+    ``floor`` (the root of the excess mean square). Each is a finding "not a function of the
+    state", with the frequency band holding the middle half of its power."""
+    B = int(search.blocks.max()) + 1
+    counts = np.bincount(search.blocks, minlength=B)
+    dt = float(np.median(np.diff(search.flights[0].t)))
+    out = []
+    for c in range(6):
+        ms = np.bincount(search.blocks, weights=left[:, c] ** 2, minlength=B) / np.maximum(counts, 1)
+        excess = (ms - 1.0) * counts
+        z, p = pvalue(excess)
+        p = min(1.0, 6 * p)
+        size = float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()))
+        if p > alpha or size < floor:
+            continue
+        out.append(Finding(STATELESS, None, (CHANNELS[c],), {}, {
+            "heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
+            "blocks_improved": int((excess > 0).sum()), "blocks": B, "band": _band(left[:, c], search.blocks, dt),
+            "rms": float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()) / search.weights[c])}))
+    return out
+
+
+def _band(x: np.ndarray, blocks: np.ndarray, dt: float) -> str:
+    """The frequency band (Hz) between the quartiles of the power of ``x``, from the spectra of
+    its blocks."""
+    psd, freqs = 0.0, None
+    for b in np.unique(blocks):
+        seg = x[blocks == b]
+        seg = seg - seg.mean()
+        spec = np.abs(np.fft.rfft(seg * np.hanning(len(seg)), n=256)) ** 2
+        psd = psd + spec
+        freqs = np.fft.rfftfreq(256, dt)
+    cum = np.cumsum(psd) / max(np.sum(psd), 1e-300)
+    lo, hi = freqs[np.searchsorted(cum, 0.25)], freqs[min(np.searchsorted(cum, 0.75), len(freqs) - 1)]
+    return f"{lo:.2g}-{hi:.2g} Hz"
+
+
+def _delay_stderr(search: Search, chosen: list[str], delays: Sequence[float]) -> float:
+    """Jackknife of the delay over the folds: chosen on all folds but one, in turn."""
+    cols = search.cols(chosen)
+    picks = []
+    for k in range(search.folds):
+        train = np.flatnonzero(search.grams(0.0).fold != k)
+        sse = {d: search.grams(d).sse(cols, search.grams(d).solve(cols, train), train).sum() for d in delays}
+        picks.append(min(sse, key=sse.get))
+    return float(jackknife(np.array(picks)[:, None])[0])
+
+
+def _stability(search: Search, chosen: list[str], name: str, competitors: list[str], delay: float) -> float:
+    """Share of the held-out folds on which ``name``, with the other chosen entries, leaves less
+    residual than each competitor in its place: the selection's own criterion, fold by fold (an
+    in-sample comparison would favour the competitor with more columns)."""
+    rivals = [c for c in competitors if c not in (DELAY.name, name) and c not in chosen]
+    if not rivals or name == DELAY.name:
+        return 1.0
+    g = search.grams(delay)
+    others = [n for n in chosen if n != name]
+
+    def per_fold(n: str) -> np.ndarray:
+        blocks, _ = g.heldout(search.cols(others + [n]))
+        return np.bincount(g.fold, weights=blocks, minlength=search.folds)
+
+    mine = per_fold(name)
+    return float(np.mean(np.all([mine <= per_fold(c) for c in rivals], axis=0)))
