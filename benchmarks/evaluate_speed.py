@@ -38,7 +38,6 @@ def loop_reference(step, flight, n_windows):
 
 
 def main() -> dict[str, float]:
-    torch.set_num_threads(2)
     names = [f"melon_bench_run{k}" for k in (1, 2, 3)]
     flights = synthetic.synthetic_flights(names, 6499, substeps=1, noise=1e-3, seed=0)
     predict = predictors.predictor("physics")

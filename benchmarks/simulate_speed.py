@@ -8,15 +8,12 @@ from __future__ import annotations
 
 import time
 
-import torch
-
 from nanosysid import sim
 
 RUNS = {"square": 4, "random": 4, "chirp": 4, "melon": 3}
 
 
 def main() -> dict[str, float]:
-    torch.set_num_threads(1)  # tiny tensors: threads only add overhead
     t0 = time.perf_counter()
     sim.simulate_flight("melon", 1)
     t_one = time.perf_counter() - t0

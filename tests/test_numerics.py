@@ -57,3 +57,33 @@ def test_a_stage_runs_the_portable_kernels_whatever_the_caller_asked(venv_env):
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
                          env={**venv_env, "ATEN_CPU_CAPABILITY": "avx2", "OMP_NUM_THREADS": "7"}).stdout.split()
     assert out == ["DEFAULT", os.environ.get("NANOSYSID_THREADS", "2")]
+
+
+def test_the_simulators_loop_runs_on_one_thread_with_the_bytes_of_two_and_gives_the_count_back(monkeypatch):
+    import numpy as np
+    import torch
+
+    import nanosysid.sim.simulator as simulator
+    from nanosysid import sim
+
+    specs = [sim.FlightSpec("chirp", 1, effects=None, seed=3), sim.FlightSpec("chirp", 2, effects={}, seed=4)]
+    cfg = sim.SimConfig.from_mapping({"preroll": 0.5, "trajectories": {"chirp": {"duration": 1.0}}})
+    seen = []
+    real = simulator.Nature.wrench
+
+    def spy(self, *a, **k):
+        seen.append(torch.get_num_threads())
+        return real(self, *a, **k)
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with monkeypatch.context() as m:
+            m.setattr(simulator.Nature, "wrench", spy)
+            ours = simulator.simulate_raw(specs, cfg=cfg, progress=False)
+        assert seen and set(seen) == {1} and torch.get_num_threads() == 2
+        two = simulator.simulate_raw.__wrapped__(specs, cfg=cfg, progress=False)  # the loop on two threads
+    finally:
+        torch.set_num_threads(before)
+    for name in ("x", "omega", "omega_dot", "wrench"):
+        assert np.array_equal(getattr(ours, name), getattr(two, name)), name

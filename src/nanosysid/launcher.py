@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 from nanosysid.errors import ConfigError, JobError
+from nanosysid.numerics import threads as torch_threads
 
 __all__ = ["Launcher", "KINDS", "map_tasks", "slurm_executor"]
 
@@ -83,15 +84,9 @@ class Launcher:
         return self.workers or os.cpu_count() or 1
 
 
-def _pinned(fn: Callable[..., Any], threads: int, args: tuple) -> Any:
-    import torch
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(threads)
-    try:
+def _pinned(fn: Callable[..., Any], count: int, args: tuple) -> Any:
+    with torch_threads(count):
         return fn(*args)
-    finally:
-        torch.set_num_threads(before)
 
 
 def slurm_executor(spec: Launcher, *, name: str = "nanosysid"):

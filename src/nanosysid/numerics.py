@@ -15,11 +15,13 @@ prints it). What is pinned, and what is not, is in the README ("Reproducibility"
 
 from __future__ import annotations
 
+import contextlib
 import os
 import platform
 import sys
+from typing import Iterator
 
-__all__ = ["PINNED", "THREADS", "pin", "pinned_environment"]
+__all__ = ["PINNED", "THREADS", "LOOP_THREADS", "pin", "pinned_environment", "threads"]
 
 # Threads split sums (a matrix product's, a reduction's) into partial sums whose order sets the
 # last bits: the count is fixed, whatever the machine's cores; NANOSYSID_THREADS changes it (and
@@ -40,6 +42,30 @@ PINNED: dict[str, str] = {
     # OpenBLAS under numpy and scipy: the Nehalem kernels (SSE4.2), which every x86-64-v2 CPU runs
     "OPENBLAS_CORETYPE": "Nehalem",
 }
+
+
+# torch's threads inside the library's loops over time on small tensors (the simulator's steps,
+# the oracle's rollout): a parallel region over a few hundred numbers costs more than it saves,
+# and it stalls whenever another process holds one of the cores. Their bytes are the same on any
+# count: each output element is computed in one order (checked by tests/test_numerics.py).
+LOOP_THREADS = 1
+
+
+@contextlib.contextmanager
+def threads(n: int) -> Iterator[None]:
+    """torch's intra-op thread count set to ``n`` inside the block (or the decorated function),
+    the caller's count restored after, whatever it was."""
+    import torch  # after pin(): this module is imported before torch
+
+    before = torch.get_num_threads()
+    if before == n:
+        yield
+        return
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
 
 
 def pinned_environment() -> dict[str, str]:

@@ -19,6 +19,7 @@ import torch
 from nanosysid import dynamics
 from nanosysid.dataio import parse_flight_name
 from nanosysid.errors import PredictionError
+from nanosysid.numerics import LOOP_THREADS, threads
 from nanosysid.rollout import advance_inputs, as_tensor
 from nanosysid.sim.simulator import flight_key
 from nanosysid.sim.world import ExtraWrench, Nature, World
@@ -61,6 +62,7 @@ class Oracle:
         return Nature([self.world], self.vehicle, disturbances=[disturbance], extra=self.extra_wrench)
 
     @torch.no_grad()
+    @threads(LOOP_THREADS)
     def __call__(self, y0, u, t0=None, flight: str | None = None) -> np.ndarray:
         y = as_tensor(y0, torch.float64)
         om = advance_inputs(as_tensor(u, torch.float64), self.rotor_delay / self.dt)  # true speeds (B, H, 4)

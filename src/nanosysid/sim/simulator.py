@@ -22,9 +22,10 @@ from tqdm.auto import tqdm
 
 from nanosysid import dynamics, so3
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, OUTPUT_COLUMNS, Flight
+from nanosysid.numerics import LOOP_THREADS, threads
 from nanosysid.sim.controller import ControllerState, Mellinger, MellingerGains
-from nanosysid.sim.world import DEFAULT_WORLD, REALISATION_START, ExtraWrench, Nature, World
 from nanosysid.sim.trajectories import Reference, make_reference
+from nanosysid.sim.world import DEFAULT_WORLD, REALISATION_START, ExtraWrench, Nature, World
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["SimConfig", "NoiseConfig", "FlightSpec", "RawRecord", "simulate", "simulate_raw", "flights_from_record",
@@ -163,6 +164,7 @@ class RawRecord:
     rngs: list[np.random.Generator]
 
 
+@threads(LOOP_THREADS)
 def simulate_raw(
     flights: Sequence[FlightSpec],
     *,
