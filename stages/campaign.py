@@ -7,12 +7,13 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from nanosysid import worlds
+from nanosysid.bags.sync import SyncConfig
 from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.effects import LIBRARY
 from nanosysid.errors import ConfigError
 from nanosysid.launcher import Launcher
 from nanosysid.report.campaign import summary_markdown, worlds_table
-from nanosysid.sim import EFFECTS
+from nanosysid.sim import EFFECTS, SimConfig
 from nanosysid.viz.campaign import confusion_figure, gap_figure, recall_figure
 from stages.common import plain, run_stage, vehicle_of
 
@@ -33,7 +34,8 @@ def main(cfg: DictConfig) -> dict:
     calibration = list(cfg.identify.calibration or [])
     setup = worlds.Setup(vehicle=vehicle_of(cfg), train=tuple(cfg.split.train), test=test[0],
                          calibration=calibration[0] if calibration else None,
-                         sim=worlds.short_flights_config(float(c.duration)))
+                         sim=worlds.short_flights_config(float(c.duration), SimConfig.from_mapping(plain(cfg.sim.flight))),
+                         sync=SyncConfig.from_mapping(plain(cfg.recording.sync)))
     rows = worlds.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
     relevant = float(c.relevant)
     summary = worlds.summarize(rows, relevant=relevant)

@@ -9,6 +9,7 @@ import torch
 import yaml
 
 import dataclasses
+import fnmatch
 
 import numpy as np
 
@@ -65,37 +66,47 @@ def test_learned_and_exported_models_are_models_of_the_config():
     assert all(cfg["export"]["models"][n] == cfg["models"][n]["artifact"] for n in cfg["export"]["models"])
 
 
-def test_dataclass_defaults_are_the_config_values():
-    from nanosysid.sim.controller import MellingerGains
-    from nanosysid.sim.simulator import NoiseConfig, SimConfig
+def test_the_schema_and_conf_name_the_same_settings():
+    """Every setting of every composition (each data source, each launcher, the optional blocks
+    set and unset) has its kind in the one schema, and every schema entry is the kind of some
+    setting (none stale, none shadowed)."""
+    from nanosysid import settings
 
-    cfg = yaml.safe_load(config.compose_text([], conf_dir=ROOT / "conf"))
-    assert dataclasses.asdict(Vehicle()) == {k: tuple(v) if isinstance(v, list) else v for k, v in cfg["vehicle"].items()}
-    flight = cfg["sim"]["flight"]
-    sim = SimConfig()
-    for f in dataclasses.fields(SimConfig):
-        if f.name not in ("noise", "trajectories", "gains"):
-            assert getattr(sim, f.name) == flight[f.name], f.name
-    assert dataclasses.asdict(NoiseConfig()) == flight["noise"]
-    assert flight["gains"] == {} and MellingerGains.from_mapping({}) == MellingerGains()
-    from nanosysid.bags.filtering import FilterConfig
-    from nanosysid.bags.recorder import RecorderConfig
-    from nanosysid.bags.sync import SyncConfig
+    used = set()
+    for overrides in ([], ["data=csv", "~model@models.oracle"], ["data=sim_direct"], ["launcher=slurm"],
+                      ["+sim.flight.gains.kp_xy=0.7", "models.residual.train.scheduler=null"]):
+        for key, _ in settings.leaves(yaml.safe_load(config.compose_text(overrides, conf_dir=ROOT / "conf"))):
+            entry = next((i for i, (pattern, _) in enumerate(settings.SCHEMA) if fnmatch.fnmatchcase(key, pattern)), None)
+            assert entry is not None, f"{key}: no kind in nanosysid.settings.SCHEMA"
+            used.add(entry)
+    assert [p for i, (p, _) in enumerate(settings.SCHEMA) if i not in used] == []
 
-    for cls, values in ((RecorderConfig, cfg["sim"]["recorder"]), (SyncConfig, cfg["recording"]["sync"]),
-                        (FilterConfig, cfg["recording"]["filter"])):
-        defaults = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(cls()).items()}
-        assert defaults == values, cls.__name__
-    # the trajectories of the default SimConfig are the configured ones
-    from nanosysid.sim.simulator import _trajectory_options
-    from nanosysid.sim.trajectories import make_reference
 
-    configured = SimConfig.from_mapping(flight)
-    t = np.linspace(-1.0, 70.0, 500)
-    for name in flight["trajectories"]:
-        a = make_reference(name, **_trajectory_options(sim, name))
-        b = make_reference(name, **_trajectory_options(configured, name))
-        assert a.duration == b.duration and np.array_equal(np.stack(a.pva(t)), np.stack(b.pva(t))), name
+def test_the_librarys_defaults_are_read_from_conf(tmp_path, monkeypatch):
+    # a value changed in conf/ is the library's new default, with nothing else to edit
+    import importlib
+
+    from nanosysid import settings
+
+    conf = tmp_path / "conf"
+    shutil.copytree(ROOT / "conf", conf)
+    text = (conf / "vehicle/cf21bl.yaml").read_text()
+    (conf / "vehicle/cf21bl.yaml").write_text(re.sub(r"^mass: 0\.045", "mass: 0.05", text, flags=re.M))
+    monkeypatch.setattr(settings, "CONF", conf)
+    settings._read.cache_clear()
+    import nanosysid.vehicle as vehicle
+
+    try:
+        assert importlib.reload(vehicle).Vehicle().mass == 0.05
+        (conf / "vehicle/cf21bl.yaml").write_text(text + "wings: 2\n")
+        settings._read.cache_clear()
+        with pytest.raises(TypeError, match=r"cf21bl\.yaml: the file and Vehicle disagree: no value for \[\], no "
+                                            r"field for \['wings'\]"):
+            importlib.reload(vehicle)
+    finally:
+        monkeypatch.undo()
+        settings._read.cache_clear()
+        importlib.reload(vehicle)
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "data").glob("*.yaml")))
@@ -190,6 +201,10 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     ("recording.filter.velocity=60", r"recording\.filter\.velocity = 60 Hz is at or above the Nyquist frequency 50 Hz"),
     ("recording.sync.rate=0", r"recording\.sync\.rate must be a positive number, got 0"),
     ("recording.sync.max_lag=-1", r"recording\.sync\.max_lag must be a positive number, got -1"),
+    ("sim.flight.feedforward=1.5", r"sim\.flight\.feedforward must be a number from 0 to 1, got 1\.5"),
+    ("discover.sindy=maybe", r"discover\.sindy must be true or false, got 'maybe'"),
+    ("report.markdown=5", r"report\.markdown must be text, got 5"),
+    ("launcher.kind=pbs", r"launcher\.kind must be one of local, slurm, got 'pbs'"),
 ])
 def test_bad_setting_values_are_one_clear_error(override, message):
     with pytest.raises(config.ConfigError, match=rf"params\.yaml with overrides: {message}"):

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
-import math
 import sys
 import tempfile
 from pathlib import Path
@@ -23,6 +22,7 @@ from typing import Sequence
 from omegaconf import DictConfig, OmegaConf
 
 from nanosysid.errors import ConfigError
+from nanosysid.settings import describe, fits, kind_of, leaves
 
 __all__ = ["compose", "compose_text", "load_params", "select_groups", "apply_overrides", "check_values"]
 
@@ -116,72 +116,6 @@ def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> 
     return cfg
 
 
-# The kinds of the numeric settings, by dotted key (``*`` stands for any part of a key).
-# A setting missing from the config is not checked here; its user says so.
-_POSITIVE = "a positive number"
-_COUNT = "a positive whole number"
-_NONNEG = "a number >= 0"
-_NONNEG_COUNT = "a whole number >= 0"
-_COUNT_OR_NULL = "a positive whole number, or null"
-_TWO_OR_MORE = "a whole number >= 2"
-_RULES: list[tuple[str, str]] = [
-    ("seed", _NONNEG_COUNT), ("*.seed", _NONNEG_COUNT), ("*_seed", _NONNEG_COUNT),
-    ("discover.folds", _TWO_OR_MORE), ("discover.block", _POSITIVE),
-    ("*vehicle.mass", _POSITIVE), ("*vehicle.inertia", _POSITIVE), ("*vehicle.arm", _POSITIVE),
-    ("*vehicle.k_f", _POSITIVE), ("*vehicle.k_m", _POSITIVE), ("*vehicle.gravity", _POSITIVE),
-    ("models.*.dt", _POSITIVE), ("models.*.substeps", _COUNT), ("discover.oracle.dt", _POSITIVE),
-    ("discover.oracle.substeps", _COUNT),
-    ("models.*.train.horizon", _COUNT), ("models.*.train.stride", _COUNT), ("models.*.train.batch_size", _COUNT),
-    ("models.*.train.epochs", _COUNT), ("models.*.train.patience", _NONNEG_COUNT),
-    ("models.*.train.optimizer.lr", _POSITIVE),
-    ("eval.horizon", _COUNT), ("eval.batch_size", _COUNT), ("eval.table_horizons", _COUNT),
-    ("recording.sync.rate", _POSITIVE), ("recording.sync.max_lag", _POSITIVE),
-    ("recording.sync.xcorr_band", _POSITIVE), ("recording.sync.xcorr_step", _POSITIVE),
-    ("recording.sync.min_samples", _COUNT), ("recording.sync.warn_gap", _NONNEG_COUNT),
-    ("recording.sync.warn_loss", _NONNEG), ("recording.sync.lag_threshold", _POSITIVE),
-    ("recording.sync.lag_window", _POSITIVE), ("recording.sync.lag_tolerance", _POSITIVE),
-    ("recording.filter.rate", _POSITIVE), ("recording.filter.order", _COUNT),
-    ("recording.filter.position", _POSITIVE), ("recording.filter.velocity", _POSITIVE),
-    ("recording.filter.acceleration", _POSITIVE), ("recording.filter.motors", _POSITIVE),
-    ("recording.filter.quaternion", _POSITIVE), ("recording.filter.max_gap", _NONNEG_COUNT),
-    ("recording.filter.max_hold", _NONNEG_COUNT), ("recording.sync.max_loss", _NONNEG),
-    ("sim.runs.*", _NONNEG_COUNT), ("sim.effects.*", _NONNEG), ("models.oracle.effects.*", _NONNEG),
-    ("sim.flight.*_rate", _POSITIVE), ("sim.flight.motor_tau", _POSITIVE), ("sim.flight.noise.*", _NONNEG),
-    ("sim.recorder.*_rate", _POSITIVE),
-    ("identify.savgol_window", _COUNT), ("identify.savgol_order", _NONNEG_COUNT),
-    ("identify.iv_blocks", _COUNT), ("identify.iv_lags", _NONNEG),
-    ("discover.savgol_window", _COUNT), ("discover.savgol_order", _NONNEG_COUNT),
-    ("discover.threshold", _NONNEG), ("discover.delay_step", _POSITIVE), ("discover.delay_max", _NONNEG),
-    ("export.onnx_samples", _COUNT), ("export.onnx_tolerance", _POSITIVE),
-    ("export.mcu.start", _NONNEG_COUNT), ("export.mcu.steps", _COUNT), ("export.mcu.tolerance", _POSITIVE),
-    ("visualize.stride", _COUNT),
-    ("campaign.worlds", _COUNT), ("campaign.chunk", _COUNT), ("campaign.duration", _POSITIVE),
-    ("campaign.user_share", _NONNEG), ("campaign.max_effects", _NONNEG_COUNT), ("campaign.relevant", _NONNEG),
-    ("launcher.workers", _COUNT_OR_NULL), ("launcher.threads", _COUNT), ("launcher.time_min", _COUNT),
-    ("launcher.mem_gb", _POSITIVE), ("launcher.cpus_per_task", _COUNT),
-]
-
-
-def _fits(value: object, kind: str) -> bool:
-    if kind == _COUNT_OR_NULL:
-        return value is None or _fits(value, _COUNT)
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        return False
-    if kind in (_COUNT, _NONNEG_COUNT, _TWO_OR_MORE) and not isinstance(value, int):
-        return False
-    if kind == _TWO_OR_MORE:
-        return value >= 2
-    return value > 0 if kind in (_POSITIVE, _COUNT) else value >= 0
-
-
-def _leaves(node: object, key: str = ""):
-    if isinstance(node, dict):
-        for k, v in node.items():
-            yield from _leaves(v, f"{key}.{k}" if key else str(k))
-    else:
-        yield key, node
-
-
 def check_values(cfg: dict, where: str = "params.yaml") -> None:
     """Refuse a setting of the wrong kind (``eval.horizon=abc``, ``substeps=0``,
     ``vehicle.mass=heavy``) or a filter cut-off at or above the Nyquist frequency.
@@ -189,13 +123,13 @@ def check_values(cfg: dict, where: str = "params.yaml") -> None:
     Raises:
         ConfigError: naming the key, the value and what it must be.
     """
-    for key, value in _leaves(cfg):
-        kind = next((k for pattern, k in _RULES if fnmatch.fnmatchcase(key, pattern)), None)
-        if kind is None:
+    for key, value in leaves(cfg):
+        kind = kind_of(key)
+        if kind is None:  # a setting the schema does not know (a new network's arguments): its user checks it
             continue
         for v in value if isinstance(value, list) else [value]:
-            if not _fits(v, kind):
-                raise ConfigError(f"{where}: {key} must be {kind}, got {value!r}")
+            if not fits(v, kind):
+                raise ConfigError(f"{where}: {key} must be {describe(kind)}, got {value!r}")
     filt = (cfg.get("recording") or {}).get("filter") or {}
     nyquist = filt.get("rate", 0) / 2
     for band in ("position", "velocity", "acceleration", "motors", "quaternion"):
@@ -214,36 +148,23 @@ def check_values(cfg: dict, where: str = "params.yaml") -> None:
 # the benchmark's longest horizon (the paper's protocol: MAE at h = 1..50)
 PROTOCOL_HORIZON = 50
 
-# settings that take one of a few words; the trainer's accelerators are Lightning's
-_CHOICES: list[tuple[str, tuple]] = [
-    ("trainer.accelerator", ("auto", "cpu", "gpu", "cuda", "mps")),
-    ("launcher.kind", ("local", "slurm")),
-    ("launcher.cluster", ("slurm", "local", "debug")),
-    ("recording.topics.odom.velocity_frame", ("world", "body")),
-]
 # a model's optimiser and scheduler are built from ``_target_``: only torch's own classes
 _TARGETS = [("models.*.train.optimizer._target_", "torch.optim"),
             ("models.*.train.scheduler._target_", "torch.optim.lr_scheduler")]
 
 
 def _check_choices(cfg: dict, where: str) -> None:
-    """Words from a fixed set, the classes an optimiser or scheduler names, the trainer's devices
-    and the report's horizons against the protocol's."""
+    """The classes an optimiser or scheduler names (torch's own) and the report's horizons
+    against the protocol's."""
     import importlib
 
-    for key, value in _leaves(cfg):
-        for pattern, choices in _CHOICES:
-            if fnmatch.fnmatchcase(key, pattern) and value not in choices:
-                raise ConfigError(f"{where}: {key} must be one of {', '.join(choices)}, got {value!r}")
+    for key, value in leaves(cfg):
         for pattern, module in _TARGETS:
             if fnmatch.fnmatchcase(key, pattern):
                 mod, _, name = str(value).rpartition(".")
                 if mod != module or not name or not hasattr(importlib.import_module(module), name):
                     raise ConfigError(f"{where}: {key} must name a class of {module} (e.g. {module}."
                                       f"{'Adam' if module == 'torch.optim' else 'ReduceLROnPlateau'}), got {value!r}")
-    devices = (cfg.get("trainer") or {}).get("devices", 1)
-    if devices != "auto" and not _fits(devices, _COUNT):
-        raise ConfigError(f"{where}: trainer.devices must be a positive whole number or auto, got {devices!r}")
     ev = cfg.get("eval") or {}
     horizon, shown = ev.get("horizon"), ev.get("table_horizons") or []
     longest = max(horizon, PROTOCOL_HORIZON) if isinstance(horizon, int) else PROTOCOL_HORIZON

@@ -2,32 +2,34 @@
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, fields
 from typing import Any, Mapping
+
+from nanosysid.settings import configured
 
 __all__ = ["Vehicle"]
 
 
-@dataclass(frozen=True)
+@configured("vehicle/cf21bl.yaml")
 class Vehicle:
-    """Rigid-body and rotor parameters; defaults are the benchmark paper's values.
+    """Rigid-body and rotor parameters; defaults are the benchmark's vehicle as
+    ``conf/vehicle/cf21bl.yaml`` gives it (values and sources there).
 
     Attributes:
         mass: Total mass (kg), battery and decks included.
         inertia: Diagonal of the body-frame inertia matrix (kg m^2), from Crazyflow.
         arm: Effective lever arm L (m): 50 mm centre-to-motor times cos(45 deg).
-        k_f: Thrust coefficient (N s^2/rad^2), identified in the paper.
-        k_m: Moment coefficient (N m s^2/rad^2): thrust-stand yaw torque per thrust (5.69 mm,
-            crazyflie-firmware's THRUST2TORQUE) times k_F; the paper's closed-loop fit is 7.73e-11.
+        k_f: Thrust coefficient (N s^2/rad^2).
+        k_m: Moment coefficient (N m s^2/rad^2).
         gravity: Gravitational acceleration (m/s^2).
     """
 
-    mass: float = 0.045
-    inertia: tuple[float, float, float] = (2.3951e-5, 2.3951e-5, 3.2347e-5)
-    arm: float = 0.03535
-    k_f: float = 3.72e-8
-    k_m: float = 2.1177e-10
-    gravity: float = 9.81
+    mass: float
+    inertia: tuple[float, float, float]
+    arm: float
+    k_f: float
+    k_m: float
+    gravity: float
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "Vehicle":

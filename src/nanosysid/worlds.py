@@ -134,31 +134,33 @@ def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3
     return out
 
 
-def short_flights_config(duration: float = 20.0):
-    """The simulator's config with every trajectory ``duration`` seconds long."""
-    default = SimConfig().trajectories
-    return SimConfig.from_mapping({"trajectories": {
+def short_flights_config(duration: float = 20.0, base: SimConfig | None = None) -> SimConfig:
+    """``base`` (the default simulator's config) with every trajectory ``duration`` seconds long."""
+    base = base or SimConfig()
+    default = base.trajectories
+    return dataclasses.replace(base, trajectories={
         "square": {},
         "random": {**default["random"], "duration": duration, "n_points": max(4, int(round(0.9 * duration)))},
         "melon": {**default["melon"], "duration": duration, "circle_time": 0.75 * duration,
                   "return_time": 0.15 * duration},
         "chirp": {"duration": duration},
         "yawsweep": {"duration": duration, "fade": min(3.0, 0.1 * duration)},
-    }})
+    })
 
 
 @dataclass(frozen=True)
 class Setup:
     """What every world of a campaign shares: the nominal vehicle (the simulated body and
     discovery's nominal model), the split of the trajectories (the configuration's ``split``),
-    the yaw calibration flight of the identify step (no part of discovery's data), and the
-    simulator's settings."""
+    the yaw calibration flight of the identify step (no part of discovery's data), the
+    simulator's settings and the sync stage's (the motor lag's estimate)."""
 
     vehicle: Vehicle = field(default_factory=Vehicle)
     train: tuple[str, ...] = ("square", "random", "chirp")
     test: str = "melon"
     calibration: str | None = "yawsweep"
     sim: SimConfig = field(default_factory=short_flights_config)
+    sync: SyncConfig = field(default_factory=SyncConfig)
 
     @property
     def trajectories(self) -> tuple[str, ...]:
@@ -292,7 +294,7 @@ def identification(world: World, flights: Sequence, setup: Setup | None = None) 
     relative to the truth, and whether each 95 % interval covers it; k_M counts as identifiable
     where the world's inertia is the nominal one (the gyro's torque is read with it)."""
     setup = setup or Setup()
-    cfg = SyncConfig()
+    cfg = setup.sync
     evidence = [motor_lag_evidence(f.name, pd.DataFrame({"t_src": f.t, "az": f.extra["az_body"]}),
                                    pd.DataFrame({"t_src": f.t, **{f"m{i + 1}": f.u[:, i] for i in range(4)}}), cfg)
                 for f in flights]

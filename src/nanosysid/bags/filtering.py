@@ -17,7 +17,6 @@ samples is an error naming the signal and the interval.
 from __future__ import annotations
 
 import logging
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -30,6 +29,7 @@ from tqdm.auto import tqdm
 from nanosysid import so3
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, Flight, atomic_dir, write_flight_csv, write_json
 from nanosysid.errors import DataError
+from nanosysid.settings import configured
 
 __all__ = ["FilterConfig", "filter_flight", "filter_folder", "lowpass", "fill_gaps"]
 
@@ -37,17 +37,20 @@ QUAT = ["qx", "qy", "qz", "qw"]
 log = logging.getLogger("nanosysid.filter")
 
 
-@dataclass(frozen=True)
+@configured("recording/default.yaml", "filter")
 class FilterConfig:
-    rate: float = 100.0  # Hz
-    order: int = 4
-    position: float = 10.0  # Hz cut-offs, the paper's table
-    velocity: float = 18.0  # linear and angular velocities
-    acceleration: float = 25.0
-    motors: float = 20.0
-    quaternion: float = 12.0  # through the log map
-    max_gap: int = 10  # samples; longer gaps are left and reported
-    max_hold: int = 30  # samples; a longer gap is an error (its held value would stand for the signal)
+    """The filter stage's settings; their defaults and meaning: ``recording.filter`` of
+    ``conf/recording/default.yaml``."""
+
+    rate: float
+    order: int
+    position: float
+    velocity: float
+    acceleration: float
+    motors: float
+    quaternion: float
+    max_gap: int
+    max_hold: int
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "FilterConfig":

@@ -36,9 +36,17 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from nanosysid.bags.extract import CRC_KEY, rotate
 from nanosysid.bags.messages import typestore
-from nanosysid.sim.simulator import NoiseConfig, RawRecord, flight_key, interp_columns, perturb_attitude, velocity_drift
-from nanosysid.vehicle import Vehicle
 from nanosysid.dataio import json_text
+from nanosysid.settings import configured
+from nanosysid.sim.simulator import (
+    NoiseConfig,
+    RawRecord,
+    flight_key,
+    interp_columns,
+    perturb_attitude,
+    velocity_drift,
+)
+from nanosysid.vehicle import Vehicle
 
 __all__ = ["RecorderConfig", "record_flight", "ERPM_PER_RADS"]
 
@@ -46,29 +54,30 @@ __all__ = ["RecorderConfig", "record_flight", "ERPM_PER_RADS"]
 ERPM_PER_RADS = 6 * 60 / (2 * math.pi)
 
 
-@dataclass(frozen=True)
+@configured("sim/default.yaml", "recorder")
 class RecorderConfig:
-    """Rates, clocks and nuisances of the recording rig."""
+    """Rates, clocks and nuisances of the recording rig; their defaults and meaning:
+    ``sim.recorder`` of ``conf/sim/default.yaml`` (tau = 0 is the start of the trajectory)."""
 
-    host_epoch: float = 1748736000.0  # s, host time at tau = 0 (2025-06-01 00:00 UTC)
-    mocap_rate: float = 120.0  # Hz
-    mocap_clock: float = 5231.25  # s, mocap clock at tau = 0
-    mocap_latency: float = 0.008  # s, capture to reception
-    mocap_dropouts_per_min: float = 3.0  # marker dropouts, mean number per minute of recording
-    mocap_dropout_len: tuple[float, float] = (0.03, 0.12)  # s, range of their lengths
-    onboard_rate: float = 100.0  # Hz
-    stm_clock: float = 123.456  # s, STM32 timer at tau = 0 (time since boot)
-    stm_drift_ppm: float = 40.0  # clock rate error against the host
-    wifi_latency: float = 0.012  # s
-    wifi_jitter: float = 0.004  # s, mean of the exponential extra delay
-    wifi_loss: float = 0.03  # share of lost packets, per stream
-    motor_delay: float = 0.020  # s, motor readings lag the IMU (plus the telemetry_delay effect)
-    motor_missed: float = 0.005  # share of missed readings per motor (the invalid marker)
-    odom_pos_noise: float = 1e-3  # m, onboard position estimate
-    status_rate: float = 10.0  # Hz
-    setpoint_rate: float = 50.0  # Hz
-    lead: float = 1.0  # s recorded before the trajectory starts
-    trail: float = 0.5  # s recorded after it ends
+    host_epoch: float
+    mocap_rate: float
+    mocap_clock: float
+    mocap_latency: float
+    mocap_dropouts_per_min: float
+    mocap_dropout_len: tuple[float, float]
+    onboard_rate: float
+    stm_clock: float
+    stm_drift_ppm: float
+    wifi_latency: float
+    wifi_jitter: float
+    wifi_loss: float
+    motor_delay: float
+    motor_missed: float
+    odom_pos_noise: float
+    status_rate: float
+    setpoint_rate: float
+    lead: float
+    trail: float
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "RecorderConfig":

@@ -35,6 +35,7 @@ from tqdm.auto import tqdm
 
 from nanosysid.dataio import atomic_dir, atomic_file, check_finite, session_of, write_json
 from nanosysid.errors import DataError
+from nanosysid.settings import configured
 
 __all__ = ["SyncConfig", "sync_flight", "sync_folder", "clock_fit", "xcorr_lag", "LagEvidence", "LagEstimate",
            "motor_lag_evidence", "motor_lag_estimate"]
@@ -42,26 +43,24 @@ __all__ = ["SyncConfig", "sync_flight", "sync_folder", "clock_fit", "xcorr_lag",
 log = logging.getLogger(__name__)
 
 
-@dataclass(frozen=True)
+@configured("recording/default.yaml", "sync")
 class SyncConfig:
-    rate: float = 100.0  # Hz, output grid on the STM32 clock
-    max_lag: float = 0.3  # s, search range of the cross-correlations
-    # both signals of a cross-correlation are band-passed first: the slow motion of the
-    # trajectory carries components that are not pure delays (drag, which follows velocity,
-    # in a_z) and would bias the peak, and above the band the sensors' noise dominates
-    xcorr_band: tuple[float, float] = (1.0, 20.0)  # Hz
-    xcorr_step: float = 0.002  # s, grid of the cross-correlations
-    min_samples: int = 51  # a flight needs at least one window (H + 1)
-    warn_loss: float = 0.10  # warn above this share of missing samples in a stream
-    warn_gap: int = 10  # warn when a stream misses more than this many samples in a row
-    max_loss: float = 0.5  # a stream missing more than this share of the flight is an error
-    # the motor lag is read off sharp thrust transients: samples where the band-passed sum
-    # Omega^2 changes this many times faster than its robust scale on the session's median
-    # flight, and the window (s) either side of each that joins the correlation
-    lag_threshold: float = 10.0
-    lag_window: float = 0.25
-    # a flight whose own lag estimate is this far (s) from its session's is reported
-    lag_tolerance: float = 0.010
+    """The sync stage's settings; their defaults and meaning: ``recording.sync`` of
+    ``conf/recording/default.yaml``. The cross-correlations' band: the slow motion of the
+    trajectory carries components that are not pure delays (drag, which follows velocity, in
+    a_z) and would bias the peak, and above the band the sensors' noise dominates."""
+
+    rate: float
+    max_lag: float
+    xcorr_band: tuple[float, float]
+    xcorr_step: float
+    min_samples: int
+    warn_loss: float
+    warn_gap: int
+    max_loss: float
+    lag_threshold: float
+    lag_window: float
+    lag_tolerance: float
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "SyncConfig":

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 from nanosysid import dynamics, so3
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, OUTPUT_COLUMNS, Flight
 from nanosysid.numerics import LOOP_THREADS, threads
+from nanosysid.settings import configured, defaults
 from nanosysid.sim.controller import ControllerState, Mellinger, MellingerGains
 from nanosysid.sim.trajectories import Reference, make_reference
 from nanosysid.sim.world import DEFAULT_WORLD, REALISATION_START, ExtraWrench, Nature, World
@@ -39,42 +40,43 @@ WRENCH_COLUMNS = ["fx_body", "fy_body", "fz_body", "tx_body", "ty_body", "tz_bod
 TRUTH_COLUMNS = [f"true_{c}" for c in (*INPUT_COLUMNS, *OUTPUT_COLUMNS, *ACCEL_COLUMNS, *WRENCH_COLUMNS)]
 
 
-@dataclass(frozen=True)
+@configured("sim/default.yaml", "flight", "noise")
 class NoiseConfig:
-    """Standard deviations of white measurement noise at the output rate."""
+    """Standard deviations of white measurement noise at the output rate, and the slowly varying
+    error of the onboard velocity estimate (first-order Gauss-Markov: the benchmark's velocity is
+    an estimate, not the derivative of the mocap position); defaults and units:
+    ``sim.flight.noise`` of ``conf/sim/default.yaml``."""
 
-    pos: float = 5e-4  # m
-    vel: float = 3e-3  # m/s
-    # slowly varying error of the onboard velocity estimate (first-order Gauss-Markov): the
-    # benchmark's velocity is an estimate, not the derivative of the mocap position
-    vel_drift: float = 0.075  # m/s
-    vel_drift_tau: float = 1.0  # s
-    att: float = 1e-3  # rad, rotation-vector perturbation
-    gyro: float = 0.02  # rad/s
-    accel: float = 0.5  # m/s^2
-    rotor: float = 3.0  # rad/s
+    pos: float
+    vel: float
+    vel_drift: float
+    vel_drift_tau: float
+    att: float
+    gyro: float
+    accel: float
+    rotor: float
 
 
-
-@dataclass(frozen=True)
+@configured("sim/default.yaml", "flight", own=("noise", "trajectories", "gains"))
 class SimConfig:
-    """Rates, motor model, trajectory options and noise of a simulation."""
+    """Rates, motor model, trajectory options and noise of a simulation; defaults and units:
+    ``sim.flight`` of ``conf/sim/default.yaml`` (RK4 at ``physics_rate`` with the command held
+    between control instants)."""
 
-    physics_rate: float = 500.0  # Hz, RK4 with the command held between control instants
-    control_rate: float = 500.0  # Hz
-    output_rate: float = 100.0  # Hz
-    motor_tau: float = 0.02  # s, first-order rotor speed response
-    omega_min: float = 500.0  # rad/s, idle
-    omega_max: float = 2900.0  # rad/s
-    preroll: float = 2.0  # s of hover before the trajectory starts
-    postroll: float = 1.0  # s simulated after the longest trajectory ends (recorded streams trail the flight)
-    initial_offset: float = 0.02  # m, std of the initial position offset
-    waypoint_seed: int = 7  # seed of the Random waypoints, shared by its runs
-    feedforward: float = 0.85  # share of the velocity and acceleration setpoints sent to the controller
+    physics_rate: float
+    control_rate: float
+    output_rate: float
+    motor_tau: float
+    omega_min: float
+    omega_max: float
+    preroll: float
+    postroll: float
+    initial_offset: float
+    waypoint_seed: int
+    feedforward: float
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     trajectories: Mapping[str, Mapping[str, Any]] = field(
-        default_factory=lambda: {"random": {"box": (2.4, 2.4, 1.2)}, "melon": {"ramp_time": 0.18}}
-    )
+        default_factory=lambda: defaults("sim/default.yaml", "flight", "trajectories"))
     gains: MellingerGains = field(default_factory=MellingerGains)
 
     @classmethod
