@@ -18,7 +18,7 @@ import subprocess
 import sys
 import time
 
-from nanosysid import sim, worlds
+from nanosysid import campaign, sim
 from nanosysid.vehicle import Vehicle
 
 SIZES = (1, 16, 256)
@@ -43,12 +43,12 @@ def _times(every, specs, cfg, label: str) -> dict[str, float]:
 
 def main() -> dict[str, float]:
     cfg = sim.SimConfig.from_mapping({"trajectories": {"chirp": {"duration": DURATION}}})
-    draws = worlds.draw(max(SIZES), seed=0)
+    draws = campaign.draw(max(SIZES), seed=0)
     vehicle = Vehicle()
     specs = [sim.FlightSpec(trajectory="chirp", run=1, effects=w.effects, seed=w.seed, extra_wrench=w.extra_wrench(vehicle),
                             name=f"chirp_w{w.index}_run1") for w in draws]
     every = dataclasses.replace(specs[0], effects={e: 1.0 for e in sim.EFFECTS},
-                                extra_wrench=functools.partial(worlds.thrust_sag, s=1.0, k_f=vehicle.k_f))
+                                extra_wrench=functools.partial(campaign.thrust_sag, s=1.0, k_f=vehicle.k_f))
     sim.simulate_flights([every], cfg=cfg, progress=False)  # warm-up: imports, first allocations
     out: dict[str, float] = {}
     for n in SIZES:

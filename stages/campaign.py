@@ -6,7 +6,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from nanosysid import worlds
+from nanosysid import campaign
 from nanosysid.bags.sync import SyncConfig
 from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.effects import LIBRARY
@@ -27,21 +27,21 @@ def main(cfg: DictConfig) -> dict:
     c = cfg.campaign
     n, chunk = int(c.worlds), int(c.chunk)  # positive whole numbers: the config's rules check them
     spec = Launcher.from_mapping(plain(cfg.launcher))
-    draws = worlds.draw(n, int(c.seed), user_share=float(c.user_share), max_effects=int(c.max_effects))
+    draws = campaign.draw(n, int(c.seed), user_share=float(c.user_share), max_effects=int(c.max_effects))
     test = list(cfg.split.test)
     if len(test) != 1:
         raise ConfigError(f"split.test: {test}; the campaign scores one test trajectory per world")
     calibration = list(cfg.identify.calibration or [])
-    setup = worlds.Setup(vehicle=vehicle_of(cfg), train=tuple(cfg.split.train), test=test[0],
+    setup = campaign.Setup(vehicle=vehicle_of(cfg), train=tuple(cfg.split.train), test=test[0],
                          calibration=calibration[0] if calibration else None,
-                         sim=worlds.short_flights_config(float(c.duration), SimConfig.from_mapping(plain(cfg.sim.flight))),
+                         sim=campaign.short_flights_config(float(c.duration), SimConfig.from_mapping(plain(cfg.sim.flight))),
                          sync=SyncConfig.from_mapping(plain(cfg.recording.sync)))
-    rows = worlds.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
+    rows = campaign.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
     relevant = float(c.relevant)
-    summary = worlds.summarize(rows, relevant=relevant)
+    summary = campaign.summarize(rows, relevant=relevant)
     effects = sorted(EFFECTS)
     table = worlds_table(rows, effects)
-    described = [e for e in effects if worlds.DESCRIBED_BY[e]]
+    described = [e for e in effects if campaign.DESCRIBED_BY[e]]
     out = Path(c.out_dir)
     with atomic_dir(out) as tmp:
         with atomic_file(tmp / "summary.json") as f:

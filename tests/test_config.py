@@ -220,3 +220,15 @@ def test_stage_reports_a_bad_setting_without_traceback(tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr
     assert r.stderr.strip().splitlines() == ["error: params.yaml with overrides: eval.horizon must be a positive whole "
                                              "number, got 'abc'"]
+
+
+def test_the_campaigns_old_module_name_still_works_for_a_release_with_a_deprecation_warning():
+    import importlib
+    import sys
+
+    from nanosysid import campaign
+
+    sys.modules.pop("nanosysid.worlds", None)
+    with pytest.warns(DeprecationWarning, match=r"nanosysid\.worlds is now nanosysid\.campaign"):
+        worlds = importlib.import_module("nanosysid.worlds")
+    assert worlds.World is campaign.HiddenWorld and worlds.check is campaign.check

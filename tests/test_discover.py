@@ -20,7 +20,7 @@ import pytest
 import torch
 
 from nanosysid import discover, sim, so3
-from nanosysid.worlds import DESCRIBED_BY
+from nanosysid.campaign import DESCRIBED_BY
 from nanosysid.sim import SimConfig
 
 pytestmark = pytest.mark.slow
