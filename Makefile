@@ -50,9 +50,10 @@ params: $(STAMP)
 deps: $(STAMP)
 	$(BIN)/python -m nanosysid.depgraph write
 
+# each stage's time into reports/repro.json, and from there into the README's run times
 repro: params toolchain
-	env $(PINNED) $(BIN)/dvc repro
-	$(BIN)/python -m nanosysid.report.readme --sections results physics
+	env $(PINNED) $(BIN)/python -m nanosysid.report.runtimes --out reports/repro.json -- $(BIN)/dvc repro
+	$(BIN)/python -m nanosysid.report.readme --sections results physics bench
 
 # every benchmark's figures into reports/bench.json, and from there into the README;
 # `make bench NAMES="simulate_batch discover_speed"` reruns only those

@@ -18,28 +18,13 @@ numerics.pin()  # the code paths the stages run, before torch and numpy are load
 import argparse  # noqa: E402
 import importlib  # noqa: E402
 import json  # noqa: E402
-import os  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
 
+from nanosysid.report.runtimes import machine  # noqa: E402
+
 BENCHMARKS = ("simulate_speed", "simulate_batch", "data_pipeline_speed", "evaluate_speed", "discover_speed", "visualize_speed")
 FORMAT = "nanosysid-bench-1"
-
-
-def machine() -> dict[str, object]:
-    import torch
-
-    cpu = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return {"cpu": cpu, "cores": os.cpu_count(), "threads": int(numerics.THREADS), "torch": torch.__version__,
-            "python": platform.python_version()}
 
 
 def _round(v):

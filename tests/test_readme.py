@@ -120,11 +120,11 @@ def test_readme_table_is_the_report_table_when_the_report_is_here():
 
 def test_readme_run_times_are_the_bench_record(monkeypatch):
     """Every time the README states is in the run-times section, generated from the committed
-    record of `make bench`; no time is typed elsewhere in the prose."""
+    records of `make bench` and `make repro`; no time is typed elsewhere in the prose."""
     monkeypatch.chdir(ROOT)
     text = (ROOT / "README.md").read_text()
     part = text[text.index(readme.BENCH_BEGIN):text.index(readme.BENCH_END) + len(readme.BENCH_END)]
-    assert part == readme.bench_section(Path("reports/bench.json"))
+    assert part == readme.bench_section(Path("reports/bench.json"), Path("reports/repro.json"))
     rest = text.replace(part, "")
     assert not re.findall(r"about \d+(\.\d+)? ?(s|min|minutes|seconds)\b", rest)
 
@@ -147,3 +147,16 @@ def test_readme_world_table_is_the_effects_records():
     text = (ROOT / "README.md").read_text()
     part = text[text.index(readme.WORLD_BEGIN):text.index(readme.WORLD_END) + len(readme.WORLD_END)]
     assert part == readme.world_section(), "run `python -m nanosysid.report.readme --sections world`"
+
+
+def test_repro_times_each_stage_from_dvcs_own_lines():
+    from nanosysid.report.runtimes import stage_times
+
+    lines = ["Running stage 'simulate':\n", "> python -m stages.simulate\n", "Updating lock file 'dvc.lock'\n",
+             "Stage 'extract' didn't change, skipping\n", "Running stage 'sync':\n", "> python -m stages.sync\n",
+             "Running stage 'train@lstm':\n", "Updating lock file 'dvc.lock'\n"]
+    ticks = iter([0.0, 1.0, 4.0, 11.5, 12.0, 12.5, 13.0, 20.0, 60.0, 61.0])  # the start, one tick per line, the end
+    record = stage_times(lines, clock=lambda: next(ticks))
+    # simulate from its line (1.0) to the lock update (11.5); sync until the next stage starts
+    assert record == {"stages": {"simulate": 10.5, "sync": 7.5, "train@lstm": 40.0}, "skipped": ["extract"],
+                      "total_s": 61.0}
