@@ -54,7 +54,7 @@ def main(argv: list[str] | None = None) -> int:
     record["benchmarks"] = {k: record["benchmarks"][k] for k in BENCHMARKS if k in record["benchmarks"]}
     from nanosysid.dataio import atomic_file
 
-    with atomic_file(a.out) as tmp:
+    with atomic_file(a.out, replace=True) as tmp:  # the record is rewritten by every run (a committed file)
         tmp.write_text(json.dumps(record, indent=1, allow_nan=False) + "\n")
     print(f"{a.out}: written")
     return 0

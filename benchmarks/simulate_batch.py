@@ -26,18 +26,14 @@ DURATION = 5.0  # s
 
 
 def _times(every, specs, cfg, label: str) -> dict[str, float]:
-    out = _times(every, specs, cfg, "")
-    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])  # one core taken
-    try:
-        out.update(_times(every, specs, cfg, "_busy"))
-    finally:
-        busy.kill()
-        busy.wait()
-    for label, what in (("", "idle"), ("_busy", "one core busy")):
-        one = out[f"flights_1{label}_s"]
-        for n in SIZES:
-            print(f"{what:>13}: {n:4d} flights of {DURATION:g} s in one batch: {out[f'flights_{n}{label}_s']:6.2f} s "
-                  f"({out[f'flights_{n}{label}_s'] / one:.2f}x one flight)")
+    out: dict[str, float] = {}
+    for n in SIZES:
+        t0 = time.perf_counter()
+        sim.simulate_flights([every] if n == 1 else specs[:n], cfg=cfg, progress=False)
+        out[f"flights_{n}{label}_s"] = time.perf_counter() - t0
+    one = out[f"flights_1{label}_s"]
+    for n in SIZES[1:]:
+        out[f"flights_{n}{label}_over_one"] = out[f"flights_{n}{label}_s"] / one
     return out
 
 
@@ -50,17 +46,18 @@ def main() -> dict[str, float]:
     every = dataclasses.replace(specs[0], effects={e: 1.0 for e in sim.EFFECTS},
                                 extra_wrench=functools.partial(campaign.thrust_sag, s=1.0, k_f=vehicle.k_f))
     sim.simulate_flights([every], cfg=cfg, progress=False)  # warm-up: imports, first allocations
-    out: dict[str, float] = {}
-    for n in SIZES:
-        t0 = time.perf_counter()
-        sim.simulate_flights([every] if n == 1 else specs[:n], cfg=cfg, progress=False)
-        out[f"flights_{n}_s"] = time.perf_counter() - t0
-    one = out["flights_1_s"]
-    for n in SIZES[1:]:
-        out[f"flights_{n}_over_one"] = out[f"flights_{n}_s"] / one
-    for n in SIZES:
-        print(f"{n:4d} flights of {DURATION:g} s in one batch: {out[f'flights_{n}_s']:6.2f} s "
-              f"({out[f'flights_{n}_s'] / one:.2f}x one flight)")
+    out = _times(every, specs, cfg, "")
+    busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])  # one core taken
+    try:
+        out.update(_times(every, specs, cfg, "_busy"))
+    finally:
+        busy.kill()
+        busy.wait()
+    for label, what in (("", "idle"), ("_busy", "one core busy")):
+        one = out[f"flights_1{label}_s"]
+        for n in SIZES:
+            print(f"{what:>13}: {n:4d} flights of {DURATION:g} s in one batch: {out[f'flights_{n}{label}_s']:6.2f} s "
+                  f"({out[f'flights_{n}{label}_s'] / one:.2f}x one flight)")
     return out
 
 

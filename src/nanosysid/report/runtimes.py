@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Iterable, TextIO
 
 from nanosysid import numerics
+from nanosysid.dataio import atomic_file
 
 __all__ = ["FORMAT", "machine", "stage_times", "main"]
 
@@ -89,8 +90,6 @@ def main(argv: list[str] | None = None) -> int:
     if rc != 0:
         return rc
     if record["stages"]:
-        from nanosysid.dataio import atomic_file
-
         payload = {"format": FORMAT, "machine": machine(), "command": " ".join(Path(cmd[0]).name.split() + cmd[1:]),
                    **record}
         with atomic_file(a.out, replace=True) as tmp:  # the record of the last run that ran a stage
