@@ -53,7 +53,7 @@ class Oracle:
         """The world's wrench on one flight: its realisation of the time-varying effects replayed
         from its name."""
         disturbance = None
-        if self.world.s("turbulence") or self.world.s("unsteady_thrust"):
+        if self.world.timed:
             if flight is None:
                 raise PredictionError("the oracle replays each flight's turbulence and thrust fluctuations: call it "
                                       "with flight=<its name> and t0 (benchmark.evaluate does)")

@@ -374,6 +374,11 @@ class World:
         return float(self.strengths.get(name, 0.0))
 
     @property
+    def timed(self) -> bool:
+        """Whether an effect of time (a random realisation per flight) is on."""
+        return any(self.s(e.name) for e, _ in _channels())
+
+    @property
     def telemetry_delay(self) -> float:
         """Delay (s) of the recorded rotor speeds behind the true ones."""
         return self.s("telemetry_delay") * TELEMETRY_DELAY
@@ -390,9 +395,9 @@ class World:
         then each rotor's relative thrust fluctuation); None when all are off. ``key`` (whole
         numbers) identifies the flight; the same key gives the same realisation, each effect from
         its own stream."""
-        parts = _channels()
-        if not any(self.s(e.name) for e, _ in parts):
+        if not self.timed:
             return None
+        parts = _channels()
         out = np.zeros((int(np.ceil((t_end - REALISATION_START) * REALISATION_RATE)) + 2, parts[-1][1].stop))
         for e, cols in parts:
             if self.s(e.name):
