@@ -16,13 +16,13 @@ from rosbags.highlevel import AnyReader
 from nanosysid.config import load_params
 from nanosysid.bags.extract import extract_folder, find_bags
 from nanosysid.bags.messages import typestore
-from nanosysid.bags.filtering import FilterConfig, filter_folder
-from nanosysid.bags.sync import SyncConfig, sync_folder
+from nanosysid.preprocess.filtering import FilterConfig, filter_folder
+from nanosysid.preprocess.sync import SyncConfig, sync_folder
 
 
 def main() -> dict[str, float]:
     cfg = load_params()
-    r = cfg.recording
+    r = cfg.preprocess
     bags_dir = Path(r.bags_dir)
     if not bags_dir.is_dir():
         raise SystemExit(f"{bags_dir}: no bags; run `make repro` first")

@@ -7,7 +7,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from nanosysid import campaign
-from nanosysid.bags.sync import SyncConfig
+from nanosysid.preprocess.sync import SyncConfig
 from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.effects import LIBRARY
 from nanosysid.errors import ConfigError
@@ -35,7 +35,7 @@ def main(cfg: DictConfig) -> dict:
     setup = campaign.Setup(vehicle=vehicle_of(cfg), train=tuple(cfg.split.train), test=test[0],
                          calibration=calibration[0] if calibration else None,
                          sim=campaign.short_flights_config(float(c.duration), SimConfig.from_mapping(plain(cfg.sim.flight))),
-                         sync=SyncConfig.from_mapping(plain(cfg.recording.sync)))
+                         sync=SyncConfig.from_mapping(plain(cfg.preprocess.sync)))
     rows = campaign.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
     relevant = float(c.relevant)
     summary = campaign.summarize(rows, relevant=relevant)

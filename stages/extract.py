@@ -7,7 +7,7 @@ from stages.common import plain, run_stage
 
 
 def main(cfg: DictConfig) -> None:
-    r = cfg.recording
+    r = cfg.preprocess
     extract_folder(r.bags_dir, r.extract_dir, plain(r.topics))
 
 

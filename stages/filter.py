@@ -2,12 +2,12 @@
 
 from omegaconf import DictConfig
 
-from nanosysid.bags.filtering import FilterConfig, filter_folder
+from nanosysid.preprocess.filtering import FilterConfig, filter_folder
 from stages.common import plain, run_stage
 
 
 def main(cfg: DictConfig) -> None:
-    r = cfg.recording
+    r = cfg.preprocess
     filter_folder(r.sync_dir, r.flights_dir, r.report_dir, FilterConfig.from_mapping(plain(r.filter)))
 
 

@@ -9,7 +9,7 @@ from stages.common import run_stage, vehicle_of
 
 
 def main(cfg: DictConfig) -> None:
-    r = cfg.recording
+    r = cfg.preprocess
     quality_report(
         r.flights_dir,
         r.bags_dir,

@@ -33,7 +33,7 @@ def main(cfg: DictConfig) -> None:
         raise ConfigError("sim.runs: no flight to simulate")
     raw = simulate_raw(specs, vehicle=vehicle, cfg=sim_cfg, date=str(s.date))
     flights = flights_from_record(raw, vehicle=vehicle, cfg=sim_cfg)
-    topics = plain(cfg.recording.topics)
+    topics = plain(cfg.preprocess.topics)
     rec_cfg = RecorderConfig.from_mapping(plain(s.recorder))
     out = Path(s.out_dir)
     with atomic_dir(out) as tmp:

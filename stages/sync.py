@@ -2,12 +2,12 @@
 
 from omegaconf import DictConfig
 
-from nanosysid.bags.sync import SyncConfig, sync_folder
+from nanosysid.preprocess.sync import SyncConfig, sync_folder
 from stages.common import plain, run_stage
 
 
 def main(cfg: DictConfig) -> None:
-    r = cfg.recording
+    r = cfg.preprocess
     sync_folder(r.extract_dir, r.sync_dir, r.report_dir, SyncConfig.from_mapping(plain(r.sync)))
 
 

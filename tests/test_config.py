@@ -196,9 +196,9 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     ("vehicle.mass=heavy", r"vehicle\.mass must be a positive number, got 'heavy'"),
     ("vehicle.k_f=nan", r"vehicle\.k_f must be a positive number, got nan"),
     ("vehicle.k_f=-3.7e-8", r"vehicle\.k_f must be a positive number, got -3\.7e-08"),
-    ("recording.filter.velocity=60", r"recording\.filter\.velocity = 60 Hz is at or above the Nyquist frequency 50 Hz"),
-    ("recording.sync.rate=0", r"recording\.sync\.rate must be a positive number, got 0"),
-    ("recording.sync.max_lag=-1", r"recording\.sync\.max_lag must be a positive number, got -1"),
+    ("preprocess.filter.velocity=60", r"preprocess\.filter\.velocity = 60 Hz is at or above the Nyquist frequency 50 Hz"),
+    ("preprocess.sync.rate=0", r"preprocess\.sync\.rate must be a positive number, got 0"),
+    ("preprocess.sync.max_lag=-1", r"preprocess\.sync\.max_lag must be a positive number, got -1"),
     ("sim.flight.feedforward=1.5", r"sim\.flight\.feedforward must be a number from 0 to 1, got 1\.5"),
     ("discover.sindy=maybe", r"discover\.sindy must be true or false, got 'maybe'"),
     ("report.markdown=5", r"report\.markdown must be text, got 5"),
@@ -230,3 +230,30 @@ def test_the_campaigns_old_module_name_still_works_for_a_release_with_a_deprecat
     with pytest.warns(DeprecationWarning, match=r"nanosysid\.worlds is now nanosysid\.campaign"):
         worlds = importlib.import_module("nanosysid.worlds")
     assert worlds.World is campaign.HiddenWorld and worlds.check is campaign.check
+
+
+@pytest.mark.parametrize("module", ["sync", "filtering"])
+def test_the_table_steps_old_module_names_still_work_for_a_release(module):
+    import importlib
+    import sys
+
+    new = importlib.import_module(f"nanosysid.preprocess.{module}")
+    sys.modules.pop(f"nanosysid.bags.{module}", None)
+    with pytest.warns(DeprecationWarning, match=rf"nanosysid\.bags\.{module} is now nanosysid\.preprocess\.{module}"):
+        old = importlib.import_module(f"nanosysid.bags.{module}")
+    assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)
+
+
+def test_the_old_name_of_the_preprocess_group_is_accepted_for_a_release_with_a_warning(tmp_path):
+    """``recording.*`` overrides (the group's name before ``preprocess``) still set the same
+    values, on a stage's command line and when composing ``params.yaml``, and say the new name."""
+    params = ROOT / "params.yaml"
+    with pytest.warns(FutureWarning, match=r"recording\.sync\.max_lag: this setting is now preprocess\.sync\.max_lag"):
+        cfg = config.load_params(["recording.sync.max_lag=0.25", "recording.filter.order=2"], path=params)
+    assert cfg.preprocess.sync.max_lag == 0.25 and cfg.preprocess.filter.order == 2 and "recording" not in cfg
+    with pytest.warns(FutureWarning, match="now preprocess.filter.max_gap"):
+        text = config.compose_text(config.renamed(["recording.filter.max_gap=7"]), conf_dir=ROOT / "conf")
+    assert yaml.safe_load(text)["preprocess"]["filter"]["max_gap"] == 7
+    # a value is not renamed, nor a key that only contains the old name
+    assert config.renamed(["data.source=recording", "sim.recording_rate=1"]) == ["data.source=recording",
+                                                                                 "sim.recording_rate=1"]

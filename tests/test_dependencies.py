@@ -62,7 +62,7 @@ def test_discovery_never_imports_the_simulated_world():
         assert not reached, f"{module} imports the simulator: {reached}"
 
 
-@pytest.mark.parametrize("module", ["src/nanosysid/bags/sync.py", "src/nanosysid/effects.py",
+@pytest.mark.parametrize("module", ["src/nanosysid/preprocess/sync.py", "src/nanosysid/effects.py",
                                     "src/nanosysid/discover/fit.py"])
 def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tmp_path, venv_env, module):
     import json

@@ -45,11 +45,11 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
     return [
         "--params", str(params),
         f"sim.out_dir={root / 'raw'}",
-        f"recording.bags_dir={root / 'raw' / 'bags'}",
-        f"recording.extract_dir={root / 'extract'}",
-        f"recording.sync_dir={root / 'sync'}",
-        f"recording.flights_dir={root / 'flights'}",
-        f"recording.report_dir={root / 'reports'}",
+        f"preprocess.bags_dir={root / 'raw' / 'bags'}",
+        f"preprocess.extract_dir={root / 'extract'}",
+        f"preprocess.sync_dir={root / 'sync'}",
+        f"preprocess.flights_dir={root / 'flights'}",
+        f"preprocess.report_dir={root / 'reports'}",
         f"data.flights_dir={root / 'flights'}",
         f"paths.split={root / 'split'}",
         f"paths.eval={root / 'eval'}",
@@ -132,7 +132,7 @@ def test_quality_fails_when_a_flights_motor_lag_is_20_ms_off(tiny, tmp_path, fie
     with pytest.raises(DataError, match=re.escape(bad["flight"])) as e:
         quality.quality_report(tiny / "flights", tiny / "raw" / "bags", tiny / "raw" / "csv", tmp_path / "sync.json",
                                tmp_path, vehicle=Vehicle(), test_trajectories=["melon"], horizon=10)
-    assert "10 ms" in str(e.value) and "recording.sync.lag_tolerance" in str(e.value)
+    assert "10 ms" in str(e.value) and "preprocess.sync.lag_tolerance" in str(e.value)
     assert {p.split(":")[0] for p in json.loads((tmp_path / "quality.json").read_text())["motor_lag_problems"]} == {
         bad["flight"]}
 
@@ -503,9 +503,9 @@ def test_outputs_and_run_cache_round_trip_through_a_remote(dvc_repo, tmp_path):
 
 
 @pytest.mark.parametrize("stage, key, onto", [
-    (extract, "recording.extract_dir", "raw/bags"),   # the output folder is the bags folder
+    (extract, "preprocess.extract_dir", "raw/bags"),   # the output folder is the bags folder
     (split, "paths.split", "flights"),                # the split written over the flights it splits
-    (sync, "recording.sync_dir", "reports"),          # a folder the stage did not write
+    (sync, "preprocess.sync_dir", "reports"),          # a folder the stage did not write
 ])
 def test_a_stage_never_replaces_its_input_or_a_folder_it_did_not_write(tiny, tmp_path, capsys, stage, key, onto):
     work = tmp_path / "w"

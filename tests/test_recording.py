@@ -13,10 +13,10 @@ from rosbags.highlevel import AnyReader
 
 from nanosysid import so3
 from nanosysid.bags.extract import extract_bag
-from nanosysid.bags.filtering import FilterConfig, fill_gaps, filter_flight, lowpass
+from nanosysid.preprocess.filtering import FilterConfig, fill_gaps, filter_flight, lowpass
 from nanosysid.bags.messages import typestore
 from nanosysid.bags.recorder import RecorderConfig, record_flight
-from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence, sync_flight
+from nanosysid.preprocess.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence, sync_flight
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 from nanosysid.bags.extract import extract_folder

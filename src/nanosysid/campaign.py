@@ -28,7 +28,7 @@ import pandas as pd
 import torch
 
 from nanosysid import benchmark, discover, identify, sim, so3
-from nanosysid.bags.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence
+from nanosysid.preprocess.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence
 from nanosysid.effects import LIBRARY
 from nanosysid.errors import PredictionError
 from nanosysid.launcher import map_tasks

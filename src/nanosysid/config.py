@@ -14,8 +14,10 @@ from __future__ import annotations
 
 import argparse
 import fnmatch
+import re
 import sys
 import tempfile
+import warnings
 from pathlib import Path
 from typing import Sequence
 
@@ -24,12 +26,34 @@ from omegaconf import DictConfig, OmegaConf
 from nanosysid.errors import ConfigError
 from nanosysid.settings import describe, fits, kind_of, leaves
 
-__all__ = ["compose", "compose_text", "load_params", "select_groups", "apply_overrides", "check_values"]
+__all__ = ["compose", "compose_text", "load_params", "select_groups", "apply_overrides", "check_values",
+           "renamed", "RENAMED"]
 
 # relative to the working directory: stages run from the root of the project they belong to
 # (DVC runs them there, also in the temporary copies of `dvc exp run`)
 CONF_DIR = Path("conf")
 PARAMS = Path("params.yaml")
+
+# old name -> new name of the settings renamed in this release; an override under an old name
+# is still accepted, with a warning, until the next one
+RENAMED = {"recording": "preprocess"}
+
+
+def renamed(overrides: Sequence[str]) -> list[str]:
+    """The overrides with every setting or group under an old name of :data:`RENAMED` under its
+    new one (``recording.sync.rate=50`` -> ``preprocess.sync.rate=50``, also with ``+``/``~`` and
+    in a package ``topics@recording.topics=x``), each rename warned about (FutureWarning)."""
+    out = []
+    for o in overrides:
+        key, eq, value = o.partition("=")
+        new = key
+        for old, to in RENAMED.items():
+            new = re.sub(rf"(^[+~]*|@){re.escape(old)}(?=$|\.)", rf"\g<1>{to}", new)
+        if new != key:
+            warnings.warn(f"{key}: this setting is now {new.lstrip('+~')}; the old name is accepted until the next "
+                          "release", FutureWarning, stacklevel=2)
+        out.append(new + eq + value)
+    return out
 
 
 def compose_text(overrides: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) -> str:
@@ -44,7 +68,7 @@ def compose_text(overrides: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) ->
 
 def compose(overrides: Sequence[str] = (), *, out: Path = PARAMS, conf_dir: Path = CONF_DIR) -> bool:
     """Write the composition to ``out``; return True when the file changed."""
-    text = compose_text(overrides, conf_dir=conf_dir)
+    text = compose_text(renamed(overrides), conf_dir=conf_dir)
     out = Path(out)
     if out.exists() and out.read_text(encoding="utf-8") == text:
         return False
@@ -110,7 +134,7 @@ def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> 
     if not path.exists():
         raise ConfigError(f"{path}: not found; run `make params` to compose it from conf/")
     cfg = OmegaConf.load(path)
-    cfg = apply_overrides(cfg, select_groups(cfg, overrides))
+    cfg = apply_overrides(cfg, select_groups(cfg, renamed(overrides)))
     OmegaConf.resolve(cfg)
     check_values(OmegaConf.to_container(cfg), f"{path}{' with overrides' if overrides else ''}")
     return cfg
@@ -130,19 +154,19 @@ def check_values(cfg: dict, where: str = "params.yaml") -> None:
         for v in value if isinstance(value, list) else [value]:
             if not fits(v, kind):
                 raise ConfigError(f"{where}: {key} must be {describe(kind)}, got {value!r}")
-    filt = (cfg.get("recording") or {}).get("filter") or {}
+    filt = (cfg.get("preprocess") or {}).get("filter") or {}
     nyquist = filt.get("rate", 0) / 2
     for band in ("position", "velocity", "acceleration", "motors", "quaternion"):
         if band in filt and filt[band] >= nyquist:
-            raise ConfigError(f"{where}: recording.filter.{band} = {filt[band]} Hz is at or above the Nyquist "
-                              f"frequency {nyquist:g} Hz of recording.filter.rate")
+            raise ConfigError(f"{where}: preprocess.filter.{band} = {filt[band]} Hz is at or above the Nyquist "
+                              f"frequency {nyquist:g} Hz of preprocess.filter.rate")
     _check_protocol(cfg, where)
     _check_choices(cfg, where)
-    band = ((cfg.get("recording") or {}).get("sync") or {}).get("xcorr_band")
-    rate = ((cfg.get("recording") or {}).get("sync") or {}).get("rate", 0)
+    band = ((cfg.get("preprocess") or {}).get("sync") or {}).get("xcorr_band")
+    rate = ((cfg.get("preprocess") or {}).get("sync") or {}).get("rate", 0)
     if band is not None and (len(band) != 2 or not band[0] < band[1] < rate / 2):
-        raise ConfigError(f"{where}: recording.sync.xcorr_band must be two frequencies, low < high < "
-                          f"{rate / 2:g} Hz (half recording.sync.rate), got {band!r}")
+        raise ConfigError(f"{where}: preprocess.sync.xcorr_band must be two frequencies, low < high < "
+                          f"{rate / 2:g} Hz (half preprocess.sync.rate), got {band!r}")
 
 
 # the benchmark's longest horizon (the paper's protocol: MAE at h = 1..50)
@@ -181,11 +205,11 @@ def _check_protocol(cfg: dict, where: str) -> None:
     from nanosysid.dataio import SAMPLE_PERIOD
 
     rate = 1 / SAMPLE_PERIOD
-    rec = cfg.get("recording") or {}
+    rec = cfg.get("preprocess") or {}
     for key in ("sync", "filter"):
         r = (rec.get(key) or {}).get("rate")
         if r is not None and abs(r - rate) > 1e-9 * rate:
-            raise ConfigError(f"{where}: recording.{key}.rate = {r:g} Hz; the benchmark's flights are at {rate:g} Hz "
+            raise ConfigError(f"{where}: preprocess.{key}.rate = {r:g} Hz; the benchmark's flights are at {rate:g} Hz "
                               "(every model and the protocol's horizons assume it)")
     steps = [(f"models.{m}.dt", (o or {}).get("dt")) for m, o in (cfg.get("models") or {}).items() if isinstance(o, dict)]
     steps.append(("discover.oracle.dt", ((cfg.get("discover") or {}).get("oracle") or {}).get("dt")))
@@ -204,7 +228,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         changed = compose(args.overrides)
         print(f"params.yaml {'updated from' if changed else 'matches'} conf/")
         return 0
-    text = compose_text(args.overrides)
+    text = compose_text(renamed(args.overrides))
     if not PARAMS.exists() or PARAMS.read_text(encoding="utf-8") != text:
         print("params.yaml differs from the composition of conf/; run `make params`", file=sys.stderr)
         return 1

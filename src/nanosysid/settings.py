@@ -5,8 +5,8 @@ its kind and bound are written once, in :data:`SCHEMA`, by dotted key of the com
 (``*`` stands for any part of a key; the first pattern that matches a key is its entry). The
 library's settings dataclasses (:class:`~nanosysid.vehicle.Vehicle`,
 :class:`~nanosysid.sim.simulator.SimConfig` and its noise,
-:class:`~nanosysid.bags.recorder.RecorderConfig`, :class:`~nanosysid.bags.sync.SyncConfig`,
-:class:`~nanosysid.bags.filtering.FilterConfig`) take their defaults from ``conf/`` through
+:class:`~nanosysid.bags.recorder.RecorderConfig`, :class:`~nanosysid.preprocess.sync.SyncConfig`,
+:class:`~nanosysid.preprocess.filtering.FilterConfig`) take their defaults from ``conf/`` through
 :func:`defaults`, so calling the library without a config gives what the pipeline's default
 config gives. ``tests/test_config.py`` checks that every setting of the composed config has an
 entry and every entry names a setting. Choices that depend on installed libraries or on other
@@ -67,21 +67,21 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("sim.recorder.stm_clock", NUMBER), ("sim.recorder.stm_drift_ppm", NUMBER), ("sim.recorder.wifi_loss", SHARE),
     ("sim.recorder.motor_missed", SHARE), ("sim.recorder.*", NONNEG),
     # the data chain: extract, sync, filter
-    ("recording.*_dir", TEXT),
-    ("recording.sync.rate", POSITIVE), ("recording.sync.max_lag", POSITIVE),
-    ("recording.sync.xcorr_band", POSITIVE), ("recording.sync.xcorr_step", POSITIVE),
-    ("recording.sync.min_samples", COUNT), ("recording.sync.warn_gap", NONNEG_COUNT),
-    ("recording.sync.warn_loss", NONNEG), ("recording.sync.lag_threshold", POSITIVE),
-    ("recording.sync.lag_window", POSITIVE), ("recording.sync.lag_tolerance", POSITIVE),
-    ("recording.sync.max_loss", NONNEG),
-    ("recording.filter.rate", POSITIVE), ("recording.filter.order", COUNT),
-    ("recording.filter.position", POSITIVE), ("recording.filter.velocity", POSITIVE),
-    ("recording.filter.acceleration", POSITIVE), ("recording.filter.motors", POSITIVE),
-    ("recording.filter.quaternion", POSITIVE), ("recording.filter.max_gap", NONNEG_COUNT),
-    ("recording.filter.max_hold", NONNEG_COUNT),
-    ("recording.topics.motors.erpm_unit", COUNT), ("recording.topics.motors.pole_pairs", COUNT),
-    ("recording.topics.motors.invalid", NONNEG_COUNT),
-    ("recording.topics.odom.velocity_frame", ("world", "body")), ("recording.topics.*", TEXT),
+    ("preprocess.*_dir", TEXT),
+    ("preprocess.sync.rate", POSITIVE), ("preprocess.sync.max_lag", POSITIVE),
+    ("preprocess.sync.xcorr_band", POSITIVE), ("preprocess.sync.xcorr_step", POSITIVE),
+    ("preprocess.sync.min_samples", COUNT), ("preprocess.sync.warn_gap", NONNEG_COUNT),
+    ("preprocess.sync.warn_loss", NONNEG), ("preprocess.sync.lag_threshold", POSITIVE),
+    ("preprocess.sync.lag_window", POSITIVE), ("preprocess.sync.lag_tolerance", POSITIVE),
+    ("preprocess.sync.max_loss", NONNEG),
+    ("preprocess.filter.rate", POSITIVE), ("preprocess.filter.order", COUNT),
+    ("preprocess.filter.position", POSITIVE), ("preprocess.filter.velocity", POSITIVE),
+    ("preprocess.filter.acceleration", POSITIVE), ("preprocess.filter.motors", POSITIVE),
+    ("preprocess.filter.quaternion", POSITIVE), ("preprocess.filter.max_gap", NONNEG_COUNT),
+    ("preprocess.filter.max_hold", NONNEG_COUNT),
+    ("preprocess.topics.motors.erpm_unit", COUNT), ("preprocess.topics.motors.pole_pairs", COUNT),
+    ("preprocess.topics.motors.invalid", NONNEG_COUNT),
+    ("preprocess.topics.odom.velocity_frame", ("world", "body")), ("preprocess.topics.*", TEXT),
     ("data.source", TEXT), ("data.flights_dir", TEXT), ("data.rotor_delay", NONNEG_OR_NULL),
     ("paths.*", TEXT), ("split.*", TEXT),
     # models
@@ -173,7 +173,7 @@ def leaves(node: object, key: str = "") -> Iterator[tuple[str, object]]:
 
 
 # the files of conf/ the library's dataclasses read their defaults from
-SOURCES = ("vehicle/cf21bl.yaml", "sim/default.yaml", "recording/default.yaml")
+SOURCES = ("vehicle/cf21bl.yaml", "sim/default.yaml", "preprocess/default.yaml")
 
 
 @functools.cache

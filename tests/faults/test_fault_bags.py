@@ -14,8 +14,8 @@ import pytest
 
 from bagtools import IMU, MOCAP, MOTORS, TOPICS, record, rewrite, stamp_of
 from nanosysid.bags.extract import extract_bag
-from nanosysid.bags.filtering import FilterConfig, filter_flight
-from nanosysid.bags.sync import SyncConfig, sync_flight
+from nanosysid.preprocess.filtering import FilterConfig, filter_flight
+from nanosysid.preprocess.sync import SyncConfig, sync_flight
 from nanosysid.errors import DataError
 
 CLASS = "silent acceptance"
@@ -92,9 +92,9 @@ LOSSES = [
     ("mocap lost for most of the flight", MOCAP, 2.0, 7.0, r"stream mocap misses \d+% of the flight's samples"),
     ("odometry lost for most of the flight", TOPICS["odom"]["topic"], 0.5, 6.5, r"stream odom misses \d+% of the flight"),
     ("imu lost for 0.6 s", IMU, 3.0, 3.6, r"rates has no measurement from \d+\.\d\d to \d+\.\d\d s \(\d+ samples\), longer "
-                                          r"than recording\.filter\.max_hold = 30"),
-    ("mocap lost for 0.8 s", MOCAP, 4.0, 4.8, r"position has no measurement from .* longer than recording\.filter\.max_hold"),
-    ("motors lost for 1 s", MOTORS, 2.0, 3.0, r"motor 1 has no measurement from .* longer than recording\.filter\.max_hold"),
+                                          r"than preprocess\.filter\.max_hold = 30"),
+    ("mocap lost for 0.8 s", MOCAP, 4.0, 4.8, r"position has no measurement from .* longer than preprocess\.filter\.max_hold"),
+    ("motors lost for 1 s", MOTORS, 2.0, 3.0, r"motor 1 has no measurement from .* longer than preprocess\.filter\.max_hold"),
 ]
 
 
@@ -141,7 +141,7 @@ def odom_frame(frame):
 def test_odometry_read_in_the_wrong_frame_is_refused(raw, tmp_path, recorded, read):
     path = tmp_path / "melon_20250601_run1"
     record(raw, path, topics=odom_frame(recorded))
-    with pytest.raises(DataError, match=rf"read as {recorded}-frame values: recording\.topics\.odom\.velocity_frame "
+    with pytest.raises(DataError, match=rf"read as {recorded}-frame values: preprocess\.topics\.odom\.velocity_frame "
                                         "does not match the recording"):
         process(path, odom_frame(read))
     process(path, odom_frame(recorded))  # read as recorded, it passes

@@ -16,8 +16,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 # every path the pipeline reads or writes, under the test's folder
 PATHS = {
-    "sim.out_dir": "raw", "recording.bags_dir": "raw/bags", "recording.extract_dir": "extract",
-    "recording.sync_dir": "sync", "recording.flights_dir": "flights", "recording.report_dir": "reports",
+    "sim.out_dir": "raw", "preprocess.bags_dir": "raw/bags", "preprocess.extract_dir": "extract",
+    "preprocess.sync_dir": "sync", "preprocess.flights_dir": "flights", "preprocess.report_dir": "reports",
     "data.flights_dir": "flights", "paths.split": "split", "paths.eval": "eval", "paths.sim_report": "sim",
     "identify.out_dir": "physics", "paths.train_logs": "train", "report.markdown": "report/benchmark.md",
     "report.latex": "report/benchmark.tex", "report.figures": "report/figures", "report.plots": "report/mae.csv",
@@ -31,14 +31,14 @@ SMALL = ["sim.runs={square: 0, random: 0, chirp: 1, melon: 1, yawsweep: 0}", "si
 
 CASES = [
     # (stage, its name argument, setting, value, the words)
-    (extract, None, "recording.extract_dir", "sync", "the output of stage sync"),
-    (extract, None, "recording.extract_dir", "raw/bags", "the stage's input"),
-    (extract, None, "recording.extract_dir", "raw/bags/x", "lies inside the stage's input"),
-    (sync, None, "recording.sync_dir", "extract", "is the stage's input"),
-    (sync, None, "recording.sync_dir", "flights", "the output of stage filter"),
-    (filter_stage, None, "recording.flights_dir", "sync", "is the stage's input"),
-    (filter_stage, None, "recording.flights_dir", "split", "the output of stage split"),
-    (quality, None, "recording.report_dir", "flights", "the stage's input"),
+    (extract, None, "preprocess.extract_dir", "sync", "the output of stage sync"),
+    (extract, None, "preprocess.extract_dir", "raw/bags", "the stage's input"),
+    (extract, None, "preprocess.extract_dir", "raw/bags/x", "lies inside the stage's input"),
+    (sync, None, "preprocess.sync_dir", "extract", "is the stage's input"),
+    (sync, None, "preprocess.sync_dir", "flights", "the output of stage filter"),
+    (filter_stage, None, "preprocess.flights_dir", "sync", "is the stage's input"),
+    (filter_stage, None, "preprocess.flights_dir", "split", "the output of stage split"),
+    (quality, None, "preprocess.report_dir", "flights", "the stage's input"),
     (split, None, "paths.split", "flights", "is the stage's input"),
     (split, None, "paths.split", "flights/split", "lies inside the stage's input"),
     (split, None, "paths.split", "raw", "the output of stage simulate"),

@@ -103,7 +103,7 @@ def quality_report(
         f.write_text(_quality_markdown(result, horizon))
     if problems:
         raise DataError(f"{Path(sync_report)}: the motor telemetry's lag is off by more than {tol:g} ms "
-                        f"(recording.sync.lag_tolerance) in {len(problems)} flight(s): " + "; ".join(problems))
+                        f"(preprocess.sync.lag_tolerance) in {len(problems)} flight(s): " + "; ".join(problems))
     return result
 
 

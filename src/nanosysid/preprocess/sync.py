@@ -1,0 +1,553 @@
+"""sync: bring the streams of one flight onto one clock and one uniform 100 Hz grid.
+
+The paper's method (section Data Preprocessing), in order:
+
+1. Clocks against the host. For every stream, the receive time is the source stamp mapped to
+   host time plus a latency that is never negative; the lower envelope of ``t_recv - t_src``
+   over one-second bins, fitted by a line, gives each clock's offset and drift (jitter only
+   ever adds delay, so the envelope is the clean relation).
+2. Motion capture against the STM32 clock. Mapped through the host first, then refined by
+   the lag that maximises the cross-correlation of the mocap and onboard positions, averaged
+   over x, y and z (the paper's method); this removes the difference of the latencies.
+3. Motor telemetry against the accelerometer: the lag that maximises the cross-correlation of
+   ``a_z`` with the sum of squared rotor speeds, then the motor stamps are moved by it.
+4. The flight segment: where the host's position setpoint is non-zero, mapped to STM32 time.
+5. Resampling to the 100 Hz grid of the STM32 clock: nearest neighbour for the onboard streams
+   (retiming, which also fills lost packets with the closest measurement), interpolation for
+   the motion capture. A mask marks the samples with no measurement of their own.
+
+Lags are searched on a 2 ms grid with parabolic refinement of the correlation peak.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+from scipy.signal import butter, sosfiltfilt
+from scipy.spatial.transform import Rotation, Slerp
+from tqdm.auto import tqdm
+
+from nanosysid.dataio import atomic_dir, atomic_file, check_finite, session_of, write_json
+from nanosysid.errors import DataError
+from nanosysid.settings import configured
+
+__all__ = ["SyncConfig", "sync_flight", "sync_folder", "clock_fit", "xcorr_lag", "LagEvidence", "LagEstimate",
+           "motor_lag_evidence", "motor_lag_estimate"]
+
+log = logging.getLogger(__name__)
+
+
+@configured("preprocess/default.yaml", "sync")
+class SyncConfig:
+    """The sync stage's settings; their defaults and meaning: ``preprocess.sync`` of
+    ``conf/preprocess/default.yaml``. The cross-correlations' band: the slow motion of the
+    trajectory carries components that are not pure delays (drag, which follows velocity, in
+    a_z) and would bias the peak, and above the band the sensors' noise dominates."""
+
+    rate: float
+    max_lag: float
+    xcorr_band: tuple[float, float]
+    xcorr_step: float
+    min_samples: int
+    warn_loss: float
+    warn_gap: int
+    max_loss: float
+    lag_threshold: float
+    lag_window: float
+    lag_tolerance: float
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any]) -> "SyncConfig":
+        kw = dict(cfg)
+        if "xcorr_band" in kw:
+            kw["xcorr_band"] = tuple(float(f) for f in kw["xcorr_band"])
+        return cls(**kw)
+
+
+def clock_fit(t_src: np.ndarray, t_recv: np.ndarray) -> tuple[float, float]:
+    """``t_recv ≈ t_src * (1 + drift) + offset`` on the lower envelope; returns (drift, offset)."""
+    d = t_recv - t_src
+    bins = np.floor((t_src - t_src[0]) / 1.0).astype(int)
+    order = np.lexsort((d, bins))
+    first = np.r_[True, np.diff(bins[order]) != 0]
+    idx = order[first]  # the least delayed sample of every 1 s bin
+    if len(idx) < 2:
+        return 0.0, float(d.min())
+    drift, offset = np.polyfit(t_src[idx] - t_src[0], d[idx], 1)
+    return float(drift), float(offset - drift * t_src[0])
+
+
+def xcorr_lag(a: np.ndarray, b: np.ndarray, dt: float, max_lag: float,
+              band: tuple[float, float] | None = None) -> float:
+    """Lag (s) by which ``b`` follows ``a``: ``b(t) ≈ a(t - lag)``; both on one grid of step dt.
+
+    With ``band`` (Hz), both signals are band-passed (zero phase) before correlating.
+    """
+    if band is not None:
+        sos = butter(2, band, "bandpass", fs=1.0 / dt, output="sos")
+        a, b = sosfiltfilt(sos, a), sosfiltfilt(sos, b)
+    a = a - a.mean()
+    b = b - b.mean()
+    n = len(a)
+    m = int(round(max_lag / dt))
+    size = 1 << int(np.ceil(np.log2(2 * n)))
+    cc = np.fft.irfft(np.fft.rfft(b, size) * np.conj(np.fft.rfft(a, size)), size)
+    lags = np.arange(-m, m + 1)
+    return _peak(cc[lags % size]) * dt
+
+
+def _xcov(a: np.ndarray, b: np.ndarray, m: int) -> np.ndarray:
+    """``sum_t a(t) b(t + k)`` for k = -m..m, ``(2m + 1,)``."""
+    size = 1 << int(np.ceil(np.log2(len(a) + len(b) + m)))
+    cc = np.fft.irfft(np.fft.rfft(b, size) * np.conj(np.fft.rfft(a, size)), size)
+    return cc[np.arange(-m, m + 1) % size]
+
+
+def _peak(vals: np.ndarray) -> float:
+    """Offset (in grid steps, from the centre of ``vals``, lags -m..m) of the maximum, refined
+    by a parabola through it and its neighbours."""
+    m = (len(vals) - 1) // 2
+    k = int(np.argmax(vals))
+    lag = float(k - m)
+    if 0 < k < len(vals) - 1:
+        y0, y1, y2 = vals[k - 1], vals[k], vals[k + 1]
+        den = y0 - 2 * y1 + y2
+        if den != 0:
+            lag += 0.5 * (y0 - y2) / den
+    return lag
+
+
+@dataclass(frozen=True)
+class LagEvidence:
+    """What one flight says about the motor telemetry's lag behind the accelerometer.
+
+    Attributes:
+        flight: The flight's name.
+        step: Grid step (s) of the signals and of the lags.
+        az, proxy: ``a_z`` and the thrust proxy ``sum Omega^2`` on one grid of the STM32
+            clock (telemetry stamps as recorded), both band-passed.
+        background: Robust standard deviation of the proxy's rate of change (1/s per step):
+            the scale of the loop's answers to the disturbances.
+    """
+
+    flight: str
+    step: float
+    az: np.ndarray
+    proxy: np.ndarray
+    background: float
+
+
+@dataclass(frozen=True)
+class LagEstimate:
+    """A motor lag (s) with its 95 % interval from independent repeats.
+
+    ``events`` counts the transients it rests on (0: the whole-flight fallback), ``units`` the
+    repeats its interval comes from (flights for a session, transients for one flight), and
+    ``background`` is the rate-of-change scale its transients stood out from.
+    """
+
+    value: float
+    interval: tuple[float | None, float | None]
+    method: str
+    events: int
+    units: int
+    background: float
+
+
+def motor_lag_evidence(name: str, imu: pd.DataFrame, motors: pd.DataFrame, cfg: SyncConfig) -> LagEvidence:
+    """``a_z`` and ``sum Omega^2`` of one flight on a common grid, band-passed to ``cfg.xcorr_band``.
+
+    Raises:
+        DataError: the streams do not overlap, or no reading has all four rotors.
+    """
+    t_imu = imu["t_src"].to_numpy()
+    t_mot = motors["t_src"].to_numpy()
+    lo, hi = max(t_imu[0], t_mot[0]), min(t_imu[-1], t_mot[-1])
+    if hi - lo < 2 * cfg.max_lag + 1.0:
+        raise DataError(f"{name}: the motor telemetry and the IMU never overlap in time")
+    step = cfg.xcorr_step
+    tf = np.arange(lo, hi, step)
+    m2 = motors[["m1", "m2", "m3", "m4"]].to_numpy()
+    valid = ~np.isnan(m2).any(axis=1)
+    if valid.sum() < 2:
+        raise DataError(f"{name}: the motor telemetry has no complete reading of the four rotors")
+    sos = butter(2, cfg.xcorr_band, "bandpass", fs=1.0 / step, output="sos")
+    proxy = sosfiltfilt(sos, np.interp(tf, t_mot[valid], (m2[valid] ** 2).sum(axis=1)))
+    az = sosfiltfilt(sos, np.interp(tf, t_imu, imu["az"].to_numpy()))
+    rate = np.gradient(proxy)
+    return LagEvidence(name, step, az - az.mean(), proxy - proxy.mean(),
+                       float(1.4826 * np.median(np.abs(rate - np.median(rate)))))
+
+
+def _transient_curves(e: LagEvidence, threshold: float, window: float, m: int) -> np.ndarray:
+    """``(E, 2m + 1)``: the cross-covariance of ``a_z`` with the proxy over the window around
+    each transient (the proxy changing faster than ``threshold``)."""
+    sharp = np.abs(np.gradient(e.proxy)) > threshold
+    w = int(round(window / e.step))
+    edges = np.flatnonzero(np.diff(np.r_[0, sharp.astype(np.int8), 0]))
+    spans: list[list[int]] = []
+    for a, b in zip(edges[::2], edges[1::2]):
+        a, b = a - w, b + w
+        if spans and a <= spans[-1][1]:
+            spans[-1][1] = b
+        else:
+            spans.append([a, b])
+    # windows clipped so that every lag of the search stays inside the flight
+    spans = [[max(a, m), min(b, len(e.proxy) - m)] for a, b in spans]
+    curves = [_xcov(e.az[a:b], e.proxy[a - m:b + m], 2 * m)[2 * m:4 * m + 1] for a, b in spans if b - a > w]
+    return np.array(curves).reshape(-1, 2 * m + 1)
+
+
+def motor_lag_estimate(evidence: Sequence[LagEvidence], cfg: SyncConfig, *,
+                       background: float | None = None) -> LagEstimate:
+    """The motor lag of one rig (a recording session, or one flight), read off its sharp
+    thrust transients.
+
+    The closed loop answers every thrust disturbance through the rotor speeds a few tens of
+    milliseconds later, so over a whole smooth flight the correlation of ``a_z`` with
+    ``sum Omega^2`` peaks early (towards zero lag). A sharp transient is set by the reference,
+    not by a disturbance: the proxy changes there ``cfg.lag_threshold`` times faster than the
+    background of the loop's answers (by default the median flight's robust scale, so a flight
+    made only of smooth motion has no transient), and there the peak sits at the telemetry's
+    lag. The lag is the peak of the cross-covariances summed over every transient of every
+    flight; its 95 % interval a delete-one jackknife with Student's t over the independent
+    repeats: the flights when several have transients, else the transients of the one. With no
+    transient anywhere, the peak of the whole-flight correlations (biased in closed loop).
+    """
+    step = evidence[0].step
+    m = int(round(cfg.max_lag / step))
+    scale = float(np.median([e.background for e in evidence])) if background is None else background
+    curves = [_transient_curves(e, cfg.lag_threshold * scale, cfg.lag_window, m) for e in evidence]
+    counts = [len(c) for c in curves]
+    if not sum(counts):
+        whole = [_xcov(e.az, e.proxy, m) for e in evidence]
+        value = _peak(np.sum([c / max(np.abs(c).max(), 1e-300) for c in whole], axis=0)) * step
+        return LagEstimate(value, (None, None), "whole-flight correlation", 0, 0, scale)
+    units = ([c.sum(0) for c in curves if len(c)] if sum(n > 0 for n in counts) > 1
+             else list(np.concatenate(curves)))
+    total = np.sum(units, axis=0)
+    value = _peak(total) * step
+    n = len(units)
+    interval: tuple[float | None, float | None] = (None, None)
+    if n > 1:
+        loo = np.array([_peak(total - u) * step for u in units])
+        se = float(np.sqrt((n - 1) / n * ((loo - loo.mean()) ** 2).sum()))
+        half = float(stats.t.ppf(0.975, n - 1)) * se
+        interval = (value - half, value + half)
+    return LagEstimate(value, interval, "sharp thrust transients", int(sum(counts)), n, scale)
+
+
+def _grid_nearest(t_src: np.ndarray, t: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index of the nearest source sample for every grid time, and the mask of grid times
+    with no source sample within half a period."""
+    j = np.clip(np.searchsorted(t_src, t), 1, len(t_src) - 1)
+    left_closer = (t - t_src[j - 1]) <= (t_src[j] - t)
+    j = np.where(left_closer, j - 1, j)
+    missing = np.abs(t_src[j] - t) > 0.5 * period + 1e-9
+    return j, missing
+
+
+def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
+                motor_lag: "LagEstimate | None" = None) -> tuple[pd.DataFrame, dict]:
+    """Synchronise and resample the streams of one flight.
+
+    ``motor_lag`` is the lag of the motor telemetry to apply, a property of the rig estimated
+    over the flights of one session (:func:`motor_lag_estimate`); None applies the flight's
+    own estimate. The flight's own estimate is reported either way.
+
+    Returns:
+        The flight on its 100 Hz grid (published columns plus ``miss_*`` masks), and a report
+        with the estimated clock relations, lags and losses.
+
+    Raises:
+        DataError: streams that never overlap, no flight segment, or a segment shorter than
+            ``cfg.min_samples``.
+    """
+    period = 1.0 / cfg.rate
+    mocap, odom, imu, motors, setp = (tables[k] for k in ("mocap", "odom", "imu", "motors", "setpoint"))
+    report: dict[str, Any] = {"flight": name}
+
+    # 1. clocks against the host
+    onboard = pd.concat([odom[["t_src", "t_recv"]], imu[["t_src", "t_recv"]]]).sort_values("t_src")
+    stm_drift, stm_off = clock_fit(onboard["t_src"].to_numpy(), onboard["t_recv"].to_numpy())
+    mc_drift, mc_off = clock_fit(mocap["t_src"].to_numpy(), mocap["t_recv"].to_numpy())
+
+    def stm_to_host(t):
+        return t * (1 + stm_drift) + stm_off
+
+    def host_to_stm(h):
+        return (h - stm_off) / (1 + stm_drift)
+
+    # 2. mocap to STM32 time: through the host, then by position cross-correlation
+    t_mc_coarse = host_to_stm(mocap["t_src"].to_numpy() * (1 + mc_drift) + mc_off)
+    t_od = odom["t_src"].to_numpy()
+    lo, hi = max(t_mc_coarse[0], t_od[0]), min(t_mc_coarse[-1], t_od[-1])
+    if hi - lo < 2 * cfg.max_lag + 1.0:
+        raise DataError(f"{name}: the motion capture and the onboard streams never overlap in time "
+                        f"(mocap {t_mc_coarse[0]:.2f}..{t_mc_coarse[-1]:.2f} s, onboard {t_od[0]:.2f}..{t_od[-1]:.2f} s "
+                        "on the STM32 clock)")
+    tf = np.arange(lo, hi, cfg.xcorr_step)
+    lags = []
+    for c in "xyz":
+        a = np.interp(tf, t_od, odom[c].to_numpy())
+        b = np.interp(tf, t_mc_coarse, mocap[c].to_numpy())
+        # mocap mapped coarsely trails the onboard estimate by the latency difference
+        lags.append(float(xcorr_lag(a, b, cfg.xcorr_step, cfg.max_lag, cfg.xcorr_band)))
+    mocap_lag = float(np.mean(lags))
+    t_mc = t_mc_coarse - mocap_lag
+    report["mocap_lag_axes"] = lags
+
+    # 3. motors against the accelerometer: the session's lag when given, else the flight's own
+    own = motor_lag_estimate([motor_lag_evidence(name, imu, motors, cfg)], cfg,
+                             background=None if motor_lag is None else motor_lag.background)
+    applied = own if motor_lag is None else motor_lag
+    t_imu = imu["t_src"].to_numpy()
+    m2 = motors[["m1", "m2", "m3", "m4"]].to_numpy()
+    t_mot = motors["t_src"].to_numpy() - applied.value
+
+    # 4. flight segment from the setpoints
+    sp = setp[["x", "y", "z"]].to_numpy()
+    on = np.linalg.norm(sp, axis=1) > 0
+    if not on.any():
+        raise DataError(f"{name}: the setpoint stream is zero throughout: no flight segment")
+    h_start, h_end = setp["t_src"].to_numpy()[on][[0, -1]]
+    s_start, s_end = host_to_stm(h_start), host_to_stm(h_end)
+    k0, k1 = int(np.ceil(s_start * cfg.rate - 1e-6)), int(np.floor(s_end * cfg.rate + 1e-6))
+    t = np.arange(k0, k1 + 1) / cfg.rate
+    if len(t) < cfg.min_samples:
+        raise DataError(f"{name}: the flight segment has {max(len(t), 0)} samples, fewer than the "
+                        f"{cfg.min_samples} of one window")
+    t = t[(t >= t_mc[0]) & (t <= t_mc[-1]) & (t >= t_od[0]) & (t <= t_od[-1])]
+    if len(t) < cfg.min_samples:
+        raise DataError(f"{name}: the streams cover {len(t)} samples of the flight segment, fewer than "
+                        f"the {cfg.min_samples} of one window")
+
+    # 5. resampling
+    out = pd.DataFrame({"t": t})
+    masks = {}
+    j, masks["odom"] = _grid_nearest(t_od, t, period)
+    for c in ("vx", "vy", "vz"):
+        out[c] = odom[c].to_numpy()[j]
+    j, masks["imu"] = _grid_nearest(t_imu, t, period)
+    for src, dst in (("wx", "wx"), ("wy", "wy"), ("wz", "wz"), ("ax", "ax_body"), ("ay", "ay_body"), ("az", "az_body")):
+        out[dst] = imu[src].to_numpy()[j]
+    for i in range(4):
+        col = m2[:, i]
+        ok = ~np.isnan(col)
+        j, miss = _grid_nearest(t_mot[ok], t, period)
+        out[f"m{i + 1}_rads"] = col[ok][j]
+        masks[f"m{i + 1}"] = miss
+    # motion capture: interpolation between frames; samples inside a dropout are marked
+    frame = np.median(np.diff(t_mc))
+    right = np.clip(np.searchsorted(t_mc, t), 1, len(t_mc) - 1)
+    masks["mocap"] = (t_mc[right] - t_mc[right - 1]) > 2.5 * frame
+    for c in ("x", "y", "z"):
+        out[c] = np.interp(t, t_mc, mocap[c].to_numpy())
+    q = mocap[["qx", "qy", "qz", "qw"]].to_numpy()
+    out[["qx", "qy", "qz", "qw"]] = Slerp(t_mc, Rotation.from_quat(q))(t).as_quat()
+    # the host's yaw setpoint (zero outside the flight), held between its messages
+    t_sp = host_to_stm(setp["t_src"].to_numpy())
+    out["yaw_ref"] = setp["yaw"].to_numpy()[np.clip(np.searchsorted(t_sp, t + 1e-9) - 1, 0, len(t_sp) - 1)]
+    for k, m in masks.items():
+        out[f"miss_{k}"] = m
+
+    _check_coverage(name, t - t[0], masks, cfg.max_loss)
+    _check_rotors(name, t - t[0], out, masks)
+    _check_velocity_frame(name, t - t[0], out)
+
+    report.update({
+        "samples": int(len(t)),
+        "t_start_stm": float(t[0]),
+        "stm_drift": stm_drift,
+        # STM32 time minus mocap time of the same instant, at the start of the flight
+        "mocap_to_stm_offset": float(t[0] - np.interp(t[0], t_mc, mocap["t_src"].to_numpy())),
+        "motor_lag": applied.value,
+        "motor_lag_source": "flight" if motor_lag is None else "session",
+        "motor_lag_interval": list(applied.interval),
+        "motor_lag_method": applied.method,
+        "motor_lag_flight": own.value if own.events else None,
+        "motor_lag_flight_interval": list(own.interval) if own.events else None,
+        "motor_lag_flight_events": own.events,
+        "mocap_lag": mocap_lag,
+        "missing": {k: float(m.mean()) for k, m in masks.items()},
+        "longest_gap": {k: _longest_run(m) for k, m in masks.items()},
+    })
+    warnings = [f"{k}: {v:.1%} of samples missing" for k, v in report["missing"].items() if v > cfg.warn_loss]
+    warnings += [f"{k}: {v} samples missing in a row" for k, v in report["longest_gap"].items() if v > cfg.warn_gap]
+    if own.events and abs(own.value - applied.value) > cfg.lag_tolerance:
+        warnings.append(f"motors: this flight's own lag {own.value * 1e3:.1f} ms is "
+                        f"{abs(own.value - applied.value) * 1e3:.1f} ms off the {applied.value * 1e3:.1f} ms applied")
+    if not applied.events:
+        warnings.append("motors: no sharp thrust transient; the lag is the whole-flight correlation's, which the "
+                        "closed loop biases towards zero")
+    report["warnings"] = warnings
+    for w in warnings:
+        log.warning("%s: %s", name, w)
+    return out, report
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """``(start, stop)`` of each run of True in ``mask``."""
+    edges = np.flatnonzero(np.diff(np.r_[0, mask.astype(int), 0]))
+    return list(zip(edges[::2].tolist(), edges[1::2].tolist()))
+
+
+def _check_coverage(name: str, t: np.ndarray, masks: Mapping[str, np.ndarray], max_loss: float) -> None:
+    """Refuse a stream that misses more than ``max_loss`` of the flight: held values would stand
+    for most of it."""
+    for stream, miss in masks.items():
+        if miss.mean() > max_loss:
+            a, b = max(_runs(miss), key=lambda r: r[1] - r[0])
+            raise DataError(f"{name}: stream {stream} misses {miss.mean():.0%} of the flight's samples (its longest "
+                            f"gap {t[a]:.2f}..{t[b - 1]:.2f} s), more than preprocess.sync.max_loss = {max_loss:g}; "
+                            "the recording lost that stream (check the topic and the link)")
+
+
+# a rotor reading below this share of the flight's median rotor speed, on this many measured
+# samples in a row, is stopped: a quadrotor cannot fly with a rotor stopped that long
+STOPPED_SHARE, STOPPED_SAMPLES = 0.1, 3
+
+
+def _check_rotors(name: str, t: np.ndarray, out: pd.DataFrame, masks: Mapping[str, np.ndarray]) -> None:
+    """Refuse rotor readings of (nearly) zero while the vehicle flies."""
+    speeds = out[[f"m{i}_rads" for i in range(1, 5)]].to_numpy()
+    typical = np.median(speeds)
+    for i in range(4):
+        stopped = (speeds[:, i] < STOPPED_SHARE * typical) & ~masks[f"m{i + 1}"]
+        for a, b in _runs(stopped):
+            if b - a >= STOPPED_SAMPLES:
+                raise DataError(f"{name}: motor m{i + 1} reads {speeds[a:b, i].max():.0f} rad/s from {t[a]:.2f} to "
+                                f"{t[b - 1]:.2f} s while the others turn at about {typical:.0f} rad/s: a rotor cannot "
+                                "stop in flight; the telemetry of that motor is wrong (or the flight segment "
+                                "includes the ground)")
+
+
+# the two frames are told apart where they differ by more than FRAME_APART (m/s RMS); the other
+# frame is the recording's when it matches the motion capture FRAME_BETTER times as closely (in
+# the right frame the other reading adds the frames' difference to the estimator's drift)
+FRAME_APART, FRAME_BETTER = 0.05, 0.7
+
+
+def _check_velocity_frame(name: str, t: np.ndarray, out: pd.DataFrame) -> None:
+    """Refuse odometry velocities that match the motion capture's only after a rotation by the
+    attitude: the topic map's ``odom.velocity_frame`` says the other frame."""
+    if len(t) < 20:
+        return
+    dt = float(np.median(np.diff(t)))
+    v_mc = np.gradient(out[["x", "y", "z"]].to_numpy(), dt, axis=0)
+    v = out[["vx", "vy", "vz"]].to_numpy()
+    attitude = Rotation.from_quat(out[["qx", "qy", "qz", "qw"]].to_numpy())
+    # the position's derivative is noisy: compare the slow parts (half-second means)
+    k = max(1, int(round(0.5 / dt)))
+    n = len(t) // k * k
+
+    def slow(x):
+        return x[:n].reshape(-1, k, 3).mean(axis=1)
+
+    given = float(np.sqrt(np.mean((slow(v) - slow(v_mc)) ** 2)))
+    # recorded in the body frame but read as world, or the reverse (rotated where it should not be)
+    for label, other in (("body-frame", attitude.apply(v)), ("world-frame", attitude.inv().apply(v))):
+        err = float(np.sqrt(np.mean((slow(other) - slow(v_mc)) ** 2)))
+        apart = float(np.sqrt(np.mean((slow(other) - slow(v)) ** 2)))
+        if apart > FRAME_APART and err < FRAME_BETTER * given:
+            raise DataError(f"{name}: the odometry velocities differ from the motion capture's by {given:.2f} m/s RMS, "
+                            f"but by {err:.2f} m/s read as {label} values: preprocess.topics.odom.velocity_frame "
+                            "does not match the recording (world: the velocity in the world frame; body: in the "
+                            "vehicle's)")
+
+
+def _longest_run(mask: np.ndarray) -> int:
+    return max((b - a for a, b in _runs(mask)), default=0)
+
+
+def extracted_flights(folder: Path) -> list[Path]:
+    """The flight folders of the extract stage's output."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise DataError(f"{folder}: no such folder")
+    flights = sorted(p for p in folder.iterdir() if p.is_dir())
+    if not flights:
+        raise DataError(f"{folder}: no extracted flights")
+    return flights
+
+
+def sync_folder(extract_dir: Path, out_dir: Path, report_dir: Path, cfg: SyncConfig) -> list[dict]:
+    """Synchronise every extracted flight; writes ``<flight>.parquet`` and ``sync.json``/``sync.md``.
+
+    The motor telemetry's lag is a property of the rig: it is estimated once per recording
+    session (the ``<date>`` of the flights' names) from the sharp thrust transients of all its
+    flights, and that one value is applied to each; every flight's own estimate is reported
+    beside it.
+    """
+    flights = extracted_flights(extract_dir)
+    tables, evidence = {}, {}
+    for d in tqdm(flights, desc="motor lag", unit="flight", disable=None):
+        tables[d.name] = {}
+        for stream in ("mocap", "odom", "imu", "motors", "setpoint"):
+            f = d / f"{stream}.parquet"
+            if not f.exists():
+                raise DataError(f"{f}: missing (the {stream} stream was not extracted)")
+            tables[d.name][stream] = pd.read_parquet(f)
+        evidence[d.name] = motor_lag_evidence(str(d), tables[d.name]["imu"], tables[d.name]["motors"], cfg)
+    sessions: dict[str, list[str]] = {}
+    for name in tables:
+        sessions.setdefault(session_of(name), []).append(name)
+    lags = {s: motor_lag_estimate([evidence[n] for n in names], cfg) for s, names in sessions.items()}
+    reports = []
+    with atomic_dir(out_dir, inputs=[extract_dir]) as tmp:
+        for d in tqdm(flights, desc="sync", unit="flight", disable=None):
+            session = session_of(d.name)
+            synced, rep = sync_flight(str(d), tables[d.name], cfg, motor_lag=lags[session])
+            rep["flight"] = d.name
+            rep["session"] = session
+            rep["session_flights"] = len(sessions[session])
+            check_finite(synced, f"{d}: synchronised flight")
+            synced.to_parquet(tmp / f"{d.name}.parquet", index=False)
+            reports.append(rep)
+    write_json(Path(report_dir) / "sync.json", reports)
+    with atomic_file(Path(report_dir) / "sync.md") as f:
+        f.write_text(_sync_markdown(reports))
+    return reports
+
+
+def _ms(v) -> str:
+    return "–" if v is None else f"{1000 * v:.1f}"
+
+
+def _sync_markdown(reports: list[dict]) -> str:
+    lines = [
+        "# Synchronisation",
+        "",
+        "Estimated clock relations and lags per flight, and the share of samples each stream",
+        "missed (lost packets, dropouts, missed motor readings; filled by the nearest measurement).",
+        "",
+        "The motor lag applied is the session's: the peak of the cross-covariance of `a_z` with the",
+        "sum of squared rotor speeds around the sharp thrust transients of all the session's flights",
+        "(in closed loop the rotors answer the thrust disturbances a few tens of milliseconds late, which",
+        "pulls a whole-flight correlation towards zero lag). Its 95 % interval is a jackknife over the",
+        "flights; each flight's own estimate (over its own transients, interval over them) stands beside it.",
+        "",
+        "| flight | samples | mocap→STM32 offset [s] | motor lag applied [ms] (95 % interval) | flight's own [ms] (95 % interval, transients) | STM32 drift [ppm] | missing (odom/imu/motors/mocap) | warnings |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in reports:
+        m = r["missing"]
+        motors = np.mean([m[f"m{i}"] for i in range(1, 5)])
+        lo, hi = r["motor_lag_interval"]
+        own = r["motor_lag_flight"]
+        own_iv = r["motor_lag_flight_interval"] or (None, None)
+        lines.append(
+            f"| {r['flight']} | {r['samples']} | {r['mocap_to_stm_offset']:.4f} | "
+            f"{_ms(r['motor_lag'])} ({_ms(lo)} to {_ms(hi)}) | "
+            + (f"{_ms(own)} ({_ms(own_iv[0])} to {_ms(own_iv[1])}, {r['motor_lag_flight_events']}) | " if own is not None
+               else "no sharp transient | ")
+            + f"{-1e6 * r['stm_drift']:.1f} | {m['odom']:.1%} / {m['imu']:.1%} / {motors:.1%} / {m['mocap']:.1%} | "
+            f"{'; '.join(r['warnings']) or '-'} |"
+        )
+    return "\n".join(lines) + "\n"
