@@ -38,8 +38,11 @@ toolchain:
 	    echo "note: the mcu stages need: apt-get install --no-install-recommends $(ARM_PACKAGES) (as root)"; \
 	fi
 
+# two workers, one test file each at a time: a file's module fixtures (the tiny pipeline, the DVC
+# repository) are built once, and the DVC tests overlap the rest of the suite
+TEST_WORKERS ?= 2
 test: $(STAMP) toolchain
-	env $(PINNED) $(BIN)/python -m pytest
+	env $(PINNED) $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # DVC composes params.yaml from conf/ only on `dvc exp run`; compose it here too so an
 # edit to conf/ is never silently ignored by `dvc repro`.
