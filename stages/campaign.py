@@ -35,7 +35,8 @@ def main(cfg: DictConfig) -> dict:
     setup = campaign.Setup(vehicle=vehicle_of(cfg), train=tuple(cfg.split.train), test=test[0],
                          calibration=calibration[0] if calibration else None,
                          sim=campaign.short_flights_config(float(c.duration), SimConfig.from_mapping(plain(cfg.sim.flight))),
-                         sync=SyncConfig.from_mapping(plain(cfg.preprocess.sync)))
+                         sync=SyncConfig.from_mapping(plain(cfg.preprocess.sync)),
+                         inertia_z_range=tuple(cfg.identify.inertia_z_range))
     rows = campaign.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
     relevant = float(c.relevant)
     summary = campaign.summarize(rows, relevant=relevant)

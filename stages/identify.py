@@ -28,6 +28,8 @@ def main(cfg: DictConfig) -> None:
         yaw = identify.fit_yaw_moment_iv(calibration, vehicle, window=window, polyorder=order,
                                          lags=[float(x) for x in c.iv_lags], blocks=int(c.iv_blocks))
     identify.check_plausible(thrust, yaw, vehicle)
+    jz_range = c.get("inertia_z_range")
+    yaw, yaw_paper = (identify.with_inertia_range(f, vehicle.inertia[2], jz_range) for f in (yaw, yaw_paper))
     out = Path(c.out_dir)
     identify.write_identified(out / "params.json", thrust, yaw, bench.train, yaw_paper=yaw_paper if calibration else None,
                          calibration=calibration)
@@ -35,6 +37,9 @@ def main(cfg: DictConfig) -> None:
         lo, hi = fit.ci95 if fit.ci95 is not None else (float("nan"), float("nan"))
         log.info("%s = %.4g (95 %% interval %.4g to %.4g; R^2 %.2f), by %s", name, fit.coef, lo, hi, fit.r2,
                  fit.estimator)
+        if fit.ci95_inertia is not None:
+            log.info("%s: 95 %% interval %.4g to %.4g with the yaw inertia anywhere in %.4g to %.4g kg m^2 (the "
+                     "flights identify k_M / J_z)", name, *fit.ci95_inertia, *fit.inertia_z_range)
     if not calibration:
         log.warning("no calibration flight (trajectories %s in %s): closed-loop bias %s", list(c.calibration),
                     cfg.data.flights_dir, identify.CLOSED_LOOP_BIAS)

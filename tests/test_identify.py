@@ -154,3 +154,32 @@ def test_the_campaign_judges_a_worlds_motor_lag_k_f_and_k_m():
     assert abs(ident["k_f_error"]) < 0.01 and ident["k_m_identifiable"] and abs(ident["k_m_error"]) < 0.15
     summary = campaign.summarize_identification([ident])
     assert summary["lag_within"] == 1.0 and summary["worlds"] == 1
+
+
+def test_k_m_interval_over_the_yaw_inertias_range_covers_a_body_heavier_in_yaw():
+    # A yaw calibration flight of a body whose yaw inertia is 50 % above the vehicle's (roll
+    # and pitch 30 %): the gyro's torque read with the vehicle's J_z puts k_M a third low, and
+    # the interval for that J_z misses nature's; read with the body's own inertia, the same fit
+    # gives nature's k_M (the yaw coefficients scale with J_z, so k_M is the ratio's); the
+    # interval over the sources' J_z range (up to 1.82 times the vehicle's) holds it.
+    from nanosysid import sim
+    from nanosysid.sim.simulator import SimConfig
+
+    vehicle = Vehicle()
+    jz = vehicle.inertia[2]
+    world = {"inertia_offset": 2.0}
+    body = sim.World(world).inertia(vehicle)
+    assert body[2] == pytest.approx(1.5 * jz)
+    cfg = SimConfig.from_mapping({"preroll": 1.0, "postroll": 0.0,
+                                  "trajectories": {"yawsweep": {"duration": 30.0, "fade": 2.0}}})
+    [f] = sim.simulate([sim.FlightSpec("yawsweep", run=1, effects=world, seed=3)], cfg=cfg, progress=False)
+    fit = identify.fit_yaw_moment_iv([f], vehicle, blocks=6)
+    assert fit.coef / vehicle.k_m - 1 == pytest.approx(1 / 1.5 - 1, abs=0.08)
+    assert not fit.ci95[0] <= vehicle.k_m <= fit.ci95[1]
+    own = identify.fit_yaw_moment_iv([f], dataclasses.replace(vehicle, inertia=body), blocks=6)
+    assert own.coef == pytest.approx(vehicle.k_m, rel=0.08)
+    wide = identify.with_inertia_range(fit, jz, (jz, 5.9e-5))
+    assert wide.coef == fit.coef and wide.ci95_inertia[0] == fit.ci95[0]
+    assert wide.ci95_inertia[0] <= vehicle.k_m <= wide.ci95_inertia[1]
+    with pytest.raises(DataError, match="identify.inertia_z_range.*does not hold the vehicle's yaw inertia"):
+        identify.with_inertia_range(fit, jz, (4e-5, 5.9e-5))

@@ -18,6 +18,10 @@ intervals come from the flights as independent repeats (a delete-one-flight jack
 Student's t), not from the white-residual formula, which the residuals' correlation in time
 makes far too narrow; the white-residual error is kept beside it.
 
+The yaw torque is read from the gyro with the vehicle's yaw inertia J_z, which the flights do not
+identify (every yaw coefficient scales with it): k_M's interval is also given with J_z anywhere in
+the range the sources give for the airframe (:func:`with_inertia_range`).
+
 The result, ``params.json``, is written and read through
 one pair of functions (:func:`write_identified`, :func:`read_identified`); the physics models,
 discovery and the export take k_F and k_M from it (:func:`identified_vehicle`).
@@ -40,8 +44,8 @@ from nanosysid.dynamics import SPIN
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "fit_yaw_moment_iv", "identify", "body_torque", "yaw_regressor", "write_identified",
-           "read_identified", "identified_vehicle"]
+__all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "fit_yaw_moment_iv", "identify", "body_torque", "yaw_regressor",
+           "with_inertia_range", "write_identified", "read_identified", "identified_vehicle"]
 
 FORMAT = "nanosysid-identified-1"
 CLOSED_LOOP_BIAS = ("possible: no calibration flight with yaw excitation, so k_M is least squares on closed-loop "
@@ -55,7 +59,9 @@ class Fit:
 
     ``stderr`` is the white-residual formula's; ``jackknife_se`` and ``ci95`` come from the
     flights as repeats (None with fewer than two flights); ``condition`` is the condition
-    number of the regression matrix with unit-norm columns.
+    number of the regression matrix with unit-norm columns. A yaw fit's ``ci95`` holds for the
+    vehicle's yaw inertia J_z; ``ci95_inertia`` widens it to every J_z in ``inertia_z_range``
+    (:func:`with_inertia_range`).
     """
 
     coef: float
@@ -69,10 +75,13 @@ class Fit:
     condition: float = 1.0
     estimator: str = "least squares on closed-loop flights (the paper's method)"
     terms: dict[str, float] = field(default_factory=dict)
+    ci95_inertia: tuple[float, float] | None = None
+    inertia_z_range: tuple[float, float] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
-        d["ci95"] = None if self.ci95 is None else list(self.ci95)
+        for key in ("ci95", "ci95_inertia", "inertia_z_range"):
+            d[key] = None if d[key] is None else list(d[key])
         return d
 
 
@@ -212,6 +221,30 @@ def fit_yaw_moment_iv(flights: Sequence[Flight], vehicle: Vehicle, *, window: in
                   f"jackknife over {n} blocks",
         terms={"rotor_inertia": float(-beta[1]), "yaw_damping": float(beta[2])},
     )
+
+
+def with_inertia_range(fit: Fit, inertia_z: float, inertia_z_range: Sequence[float] | None) -> Fit:
+    """A yaw fit whose interval also spans the yaw inertia's uncertainty.
+
+    The yaw torque is read from the gyro as ``J_z dw_z/dt + (J_y - J_x) w_x w_y``, so every
+    coefficient of a yaw fit (k_M, the rotor inertia, the damping) scales with the J_z it was
+    read with (``inertia_z``, kg m^2; exactly where J_x = J_y): the flights identify k_M / J_z,
+    not k_M. ``ci95_inertia`` is ``ci95`` with J_z anywhere in ``inertia_z_range`` (kg m^2, the
+    range the sources give for the airframe): ``(low * J_lo / J_z, high * J_hi / J_z)``. The
+    estimate stays the one for the vehicle's J_z. None: the fit unchanged.
+
+    Raises:
+        DataError: a range that is not two positive numbers, low to high, holding ``inertia_z``.
+    """
+    if inertia_z_range is None or fit.ci95 is None:
+        return fit
+    bounds = [float(v) for v in inertia_z_range]
+    lo, hi = (bounds + [math.nan, math.nan])[:2]
+    if len(bounds) != 2 or not (0 < lo <= inertia_z <= hi):
+        raise DataError(f"identify.inertia_z_range: {bounds} kg m^2 does not hold the vehicle's yaw "
+                        f"inertia {inertia_z:.4g} (vehicle.inertia[2]); give the range the sources allow, low to high")
+    return dataclasses.replace(fit, ci95_inertia=(fit.ci95[0] * lo / inertia_z, fit.ci95[1] * hi / inertia_z),
+                               inertia_z_range=(lo, hi))
 
 
 def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, polyorder: int = 3) -> tuple[Fit, Fit]:

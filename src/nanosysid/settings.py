@@ -100,7 +100,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("eval.horizon", COUNT), ("eval.batch_size", COUNT), ("eval.table_horizons", COUNT),
     ("identify.out_dir", TEXT), ("identify.calibration", TEXT),
     ("identify.savgol_window", COUNT), ("identify.savgol_order", NONNEG_COUNT),
-    ("identify.iv_blocks", COUNT), ("identify.iv_lags", NONNEG),
+    ("identify.iv_blocks", COUNT), ("identify.iv_lags", NONNEG), ("identify.inertia_z_range", POSITIVE),
     ("report.lineplot.flight", TEXT_OR_NULL), ("report.lineplot.window", NONNEG), ("report.lineplot.smooth", COUNT),
     ("report.lineplot.models", TEXT), ("report.*", TEXT),
     ("visualize.out_dir", TEXT), ("visualize.stride", COUNT),

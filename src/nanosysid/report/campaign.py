@@ -61,7 +61,9 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
               f"{q(idn['k_f_abs_error'], 100, '%')}",
               f"- k_M: within {100 * idn['k_m_tolerance']:g} % in {_pct(idn['k_m_within'])} of the "
               f"{idn['k_m_identifiable_worlds']} worlds that leave it identifiable; interval covers the truth in "
-              f"{_pct(idn['k_m_covered'])} of all {idn['k_m_worlds']}; absolute error {q(idn['k_m_abs_error'], 100, '%')}",
+              f"{_pct(idn['k_m_covered'])} of all {idn['k_m_worlds']} with the yaw inertia anywhere in the sources' range "
+              f"(in {_pct(idn.get('k_m_covered_given_inertia'))} with the vehicle's taken as exact); absolute error "
+              f"{q(idn['k_m_abs_error'], 100, '%')}",
               f"- k_M by the paper's least squares on the training flights: absolute error "
               f"{q(idn['k_m_paper_abs_error'], 100, '%')}", ""]
     return "\n".join(L)

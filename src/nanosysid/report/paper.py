@@ -194,6 +194,13 @@ def identification_markdown(c: Comparison) -> str:
          f"{ci(m['paper_method_fit'])} | {m['nature']:.4g} | {m['paper_method'] / m['nature'] - 1:+.1%} |",
          f"| k_M, the paper's table | least squares on the real closed-loop flights | {m['paper']:.4g} | – | – | "
          f"ours by its method {m['paper_method'] / m['paper'] - 1:+.1%} |", ""]
+    jz = m["fit"].get("inertia_z_range")
+    if jz and m["fit"].get("ci95_inertia"):
+        lo, hi = m["fit"]["ci95_inertia"]
+        L += [f"The flights identify k_M / J_z, not k_M: every yaw coefficient scales with the yaw inertia the gyro's "
+              f"torque is read with. With J_z anywhere in the sources' {jz[0]:.4g} to {jz[1]:.4g} kg m² "
+              f"(`identify.inertia_z_range`), k_M's 95 % interval is {lo:.4g} to {hi:.4g}"
+              f" ({'covering' if lo <= m['nature'] <= hi else 'missing'} nature's).", ""]
     return "\n".join(L)
 
 
