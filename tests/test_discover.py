@@ -35,7 +35,7 @@ CFG = SimConfig.from_mapping({"trajectories": {
 BEYOND_LIBRARY = {e for e, names in DESCRIBED_BY.items() if not names}
 TRUTH = {
     "cg_offset": (1.5e-3, -1.0e-3),  # r_x, r_y [m]
-    "input_delay": (0.030,),  # s
+    "input_delay": (0.033,),  # s: the world's 30 ms times 1.1, between two points of the search's 5 ms grid
     "rotor_gyro": (3.9e-8,),  # kg m^2
 }
 
@@ -69,7 +69,7 @@ def yaw_gust(t, x, om, om_dot):
 
 WORLDS = {
     "clean": ({}, None, 1),
-    "delay": ({"telemetry_delay": 1.0}, None, 1),
+    "delay": ({"telemetry_delay": 1.1}, None, 1),
     "cg": ({"com_offset": 1.0}, None, 1),
     # turbulence (beyond the library) is a torque the controller fights: a larger inertia or arm
     # would "explain" most of it, and their bounds rule them out
@@ -171,10 +171,12 @@ def test_a_hidden_effect_is_named_with_its_truth_inside_its_interval(world, entr
     # named: it beat its eligible rivals held out, so it is the best of its round on most folds
     # (an implausible candidate that fits better is no rival)
     assert f.evidence["stability"] >= 0.7, f.evidence["stability"]
+    # the delay is read off a grid, so its interval must reach the truth between two points
+    slack = 0.0 if entry == "input_delay" else 0.1
     for (k, v), truth in zip(f.params.items(), TRUTH[entry]):
         lo, hi = f.evidence["ci"][k]
         assert abs(v - truth) <= 0.2 * abs(truth), (k, v, truth)
-        assert lo - 0.1 * abs(truth) <= truth <= hi + 0.1 * abs(truth), (k, lo, hi, truth)
+        assert lo - slack * abs(truth) <= truth <= hi + slack * abs(truth), (k, lo, hi, truth)
 
 
 def test_thrust_falling_with_vertical_speed_is_not_blamed_on_horizontal_drag():

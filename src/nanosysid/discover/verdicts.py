@@ -93,7 +93,11 @@ def named(search: Search, selection: Selection, fit: Coefficients, vehicle: Vehi
         ev["stderr"] = stderr
         half = {k: half_width(stderr[k], search.folds) for k in params}
         if c is DELAY:
-            ev["ci"] = {k: (params[k] - half[k], params[k] + half[k]) for k in params}
+            # the search reads the delay off a grid: the truth may lie anywhere within half a grid
+            # step of the point chosen, which the folds' spread alone (zero when every fold picks
+            # the same point) does not say
+            below, above = _grid_gaps((0.0,) + tuple(delays), delay)
+            ev["ci"] = {k: (params[k] - half[k] - below, params[k] + half[k] + above) for k in params}
         else:
             ev["rival_range"] = {k: (float(spread[:, i].min()), float(spread[:, i].max())) for i, k in enumerate(params)}
             ev["ci"] = {k: (ev["rival_range"][k][0] - half[k], ev["rival_range"][k][1] + half[k]) for k in params}
@@ -195,6 +199,14 @@ def _band(x: np.ndarray, blocks: np.ndarray, dt: float) -> str:
     cum = np.cumsum(psd) / max(np.sum(psd), 1e-300)
     lo, hi = freqs[np.searchsorted(cum, 0.25)], freqs[min(np.searchsorted(cum, 0.75), len(freqs) - 1)]
     return f"{lo:.2g}-{hi:.2g} Hz"
+
+
+def _grid_gaps(grid: Sequence[float], value: float) -> tuple[float, float]:
+    """Half the distance from ``value``, a point of ``grid``, to its neighbours below and above
+    (0 at the grid's ends: the search tries nothing beyond them)."""
+    g = np.unique(np.asarray(grid, dtype=float))
+    i = int(np.argmin(np.abs(g - value)))
+    return (float(g[i] - g[i - 1]) / 2 if i > 0 else 0.0, float(g[i + 1] - g[i]) / 2 if i + 1 < len(g) else 0.0)
 
 
 def _delay_stderr(search: Search, chosen: list[str], delays: Sequence[float]) -> float:
