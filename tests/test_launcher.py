@@ -81,7 +81,8 @@ def test_campaign_gives_the_same_bytes_with_one_or_two_workers(tmp_path, monkeyp
     config.compose([], out=params)
     for workers in (1, 2):
         argv = ["--params", str(params), "campaign.worlds=2", "campaign.chunk=1", "campaign.duration=6.0",
-                "launcher=local", f"launcher.workers={workers}", f"campaign.out_dir={tmp_path / str(workers)}"]
+                "sim.flight.trajectories.yawsweep.duration=6.0", "launcher=local", f"launcher.workers={workers}",
+                f"campaign.out_dir={tmp_path / str(workers)}"]
         assert run_stage(campaign.main, description="", argv=argv) == 0
     for name in ("summary.json", "worlds.parquet", "summary.md"):
         assert (tmp_path / "1" / name).read_bytes() == (tmp_path / "2" / name).read_bytes(), name

@@ -135,17 +135,24 @@ def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3
     return out
 
 
-def short_flights_config(duration: float = 20.0, base: SimConfig | None = None) -> SimConfig:
-    """``base`` (the default simulator's config) with every trajectory ``duration`` seconds long."""
+def short_flights_config(duration: float = 20.0, base: SimConfig | None = None, *,
+                         calibration: float | None = None) -> SimConfig:
+    """``base`` (the default simulator's config) with every benchmark trajectory ``duration``
+    seconds long, and the yaw calibration flight ``calibration`` seconds long (None: as ``base``
+    flies it, so that the campaign judges the identification the product runs: a sweep from
+    0.05 Hz cut to 20 s holds one slow cycle, and k_M's estimate from it is two to three times
+    more scattered)."""
     base = base or SimConfig()
     default = base.trajectories
+    sweep = dict(default["yawsweep"]) if calibration is None else {
+        "duration": calibration, "fade": min(3.0, 0.1 * calibration)}
     return dataclasses.replace(base, trajectories={
         "square": {},
         "random": {**default["random"], "duration": duration, "n_points": max(4, int(round(0.9 * duration)))},
         "melon": {**default["melon"], "duration": duration, "circle_time": 0.75 * duration,
                   "return_time": 0.15 * duration},
         "chirp": {"duration": duration},
-        "yawsweep": {"duration": duration, "fade": min(3.0, 0.1 * duration)},
+        "yawsweep": sweep,
     })
 
 
