@@ -18,6 +18,8 @@ Entities, for a flight of T samples, horizon H and S rollout starts:
 
 from __future__ import annotations
 
+import itertools
+import uuid
 from pathlib import Path
 from typing import Mapping
 
@@ -25,6 +27,7 @@ import numpy as np
 
 from nanosysid import metrics
 from nanosysid.dataio import Flight, atomic_file
+from nanosysid.viz import rrd
 from nanosysid.viz.signals import SIGNALS, ahead, model_color, readable
 
 __all__ = ["write_recording", "rollout_starts", "APPLICATION_ID"]
@@ -48,7 +51,7 @@ def _blueprint(models: list[str], notes: bool = False):
               for k in SIGNALS]
     errors = [rrb.TimeSeriesView(origin=f"errors/{k}", name=f"error of {SIGNALS[k][0]} [{metrics.UNITS[k]}]")
               for k in SIGNALS]
-    return rrb.Blueprint(
+    blueprint = rrb.Blueprint(
         rrb.Horizontal(
             rrb.Spatial3DView(origin="world", name="trajectory, pose and rollouts"),
             rrb.Vertical(rrb.Tabs(*series, name="signals"), rrb.Tabs(*errors, name="errors"),
@@ -58,6 +61,17 @@ def _blueprint(models: list[str], notes: bool = False):
         rrb.TimePanel(state="expanded"),
         collapse_panels=True,
     )
+    # views and containers are named by ids the SDK draws at random: number them in layout order
+    ids = itertools.count(1)
+
+    def number(item) -> None:
+        item.id = uuid.UUID(int=next(ids))
+        for child in getattr(item, "contents", None) or ():
+            if hasattr(child, "id"):  # a view or container, not a view's query of entities
+                number(child)
+
+    number(blueprint.root_container)
+    return blueprint
 
 
 def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Path, *, stride: int = 50,
@@ -79,41 +93,47 @@ def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Pa
     t = flight.t - flight.t[0]
     starts = rollout_starts(n, stride)
     # the recording id is the flight's, so the same flight and models give the same file
-    rec = rr.RecordingStream(APPLICATION_ID, recording_id=f"{APPLICATION_ID}-{flight.name}", send_properties=False)
+    recording_id = f"{APPLICATION_ID}-{flight.name}"
+    rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id, send_properties=False)
+
+    def static(entity: str, archetype) -> None:
+        # flushed at once: the SDK's batcher thread would otherwise interleave these chunks with
+        # the columns sent directly, in an order that varies from run to run
+        rec.log(entity, archetype, static=True)
+        rec.flush()
+
     with atomic_file(Path(path)) as tmp:
         rec.save(tmp, default_blueprint=_blueprint(list(rollouts), notes=verdicts is not None))
         if verdicts is not None:
-            rec.log("discovery", rr.TextDocument(verdicts, media_type=rr.MediaType.MARKDOWN), static=True)
+            static("discovery", rr.TextDocument(verdicts, media_type=rr.MediaType.MARKDOWN))
         every = [rr.TimeColumn("time", duration=t)]
         predicted = [rr.TimeColumn("time", duration=t[H:H + n])]
         at_starts = [rr.TimeColumn("time", duration=t[starts])]
 
-        rec.log("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP, static=True)
-        rec.log("world/trajectory", rr.LineStrips3D([flight.y[:, :3]], colors=[[150, 150, 150]], radii=0.002),
-                static=True)
+        static("world", rr.ViewCoordinates.RIGHT_HAND_Z_UP)
+        static("world/trajectory", rr.LineStrips3D([flight.y[:, :3]], colors=[[150, 150, 150]], radii=0.002))
         rec.send_columns("world/drone", indexes=every,
                          columns=rr.Transform3D.columns(translation=flight.y[:, :3], quaternion=flight.y[:, 6:10]))
         # body axes of the drone, 8 cm long: x red, y green, z blue
-        rec.log("world/drone/axes", rr.Arrows3D(vectors=0.08 * np.eye(3),
-                                                colors=[[230, 40, 40], [40, 180, 40], [40, 80, 230]]), static=True)
+        static("world/drone/axes", rr.Arrows3D(vectors=0.08 * np.eye(3),
+                                               colors=[[230, 40, 40], [40, 180, 40], [40, 80, 230]]))
 
         # the measured next H positions from each start, then each model's prediction of them
         truth_paths = np.stack([flight.y[s:s + H + 1, :3] for s in starts])  # (S, H+1, 3)
-        rec.log("world/rollouts/truth", rr.LineStrips3D.from_fields(colors=_rgb(model_color("truth")), radii=0.003),
-                static=True)
+        static("world/rollouts/truth", rr.LineStrips3D.from_fields(colors=_rgb(model_color("truth")), radii=0.003))
         rec.send_columns("world/rollouts/truth", indexes=at_starts,
                          columns=rr.LineStrips3D.columns(strips=list(truth_paths)))
         for i, (name, pred) in enumerate(rollouts.items()):
             paths = np.concatenate([flight.y[starts, None, :3], pred[starts, :, :3]], axis=1)  # (S, H+1, 3)
-            rec.log(f"world/rollouts/{name}", rr.LineStrips3D.from_fields(colors=_rgb(model_color(name, i)),
-                                                                         radii=0.003), static=True)
+            static(f"world/rollouts/{name}", rr.LineStrips3D.from_fields(colors=_rgb(model_color(name, i)),
+                                                                        radii=0.003))
             rec.send_columns(f"world/rollouts/{name}", indexes=at_starts,
                              columns=rr.LineStrips3D.columns(strips=list(paths)))
 
         truth = readable(flight.y)
         for k, (label, _, axes) in SIGNALS.items():
-            rec.log(f"signals/{k}/truth", rr.SeriesLines(names=[f"{a} measured" for a in axes],
-                                                         colors=[_rgb(model_color("truth"))] * 3), static=True)
+            static(f"signals/{k}/truth", rr.SeriesLines(names=[f"{a} measured" for a in axes],
+                                                        colors=[_rgb(model_color("truth"))] * 3))
             rec.send_columns(f"signals/{k}/truth", indexes=every, columns=rr.Scalars.columns(scalars=truth[k]))
         for i, (name, pred) in enumerate(rollouts.items()):
             y_hat = ahead(pred, H, T)[H:H + n]  # (n, 13): ŷ(t | t-H)
@@ -121,11 +141,12 @@ def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Pa
             shown = readable(y_hat)
             color = _rgb(model_color(name, i))
             for k, (label, _, axes) in SIGNALS.items():
-                rec.log(f"signals/{k}/{name}", rr.SeriesLines(names=[f"{a} {name}" for a in axes], colors=[color] * 3),
-                        static=True)
+                static(f"signals/{k}/{name}", rr.SeriesLines(names=[f"{a} {name}" for a in axes], colors=[color] * 3))
                 rec.send_columns(f"signals/{k}/{name}", indexes=predicted, columns=rr.Scalars.columns(scalars=shown[k]))
-                rec.log(f"errors/{k}/{name}", rr.SeriesLines(names=[name], colors=[color]), static=True)
+                static(f"errors/{k}/{name}", rr.SeriesLines(names=[name], colors=[color]))
                 rec.send_columns(f"errors/{k}/{name}", indexes=predicted,
                                  columns=rr.Scalars.columns(scalars=err[k][0]))
         rec.flush()
         rec.disconnect()
+        # the SDK's random ids and wall-clock times replaced: the same flight and models, the same bytes
+        tmp.write_bytes(rrd.with_footer(rrd.canonical(tmp.read_bytes(), recording_id)))
