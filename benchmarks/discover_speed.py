@@ -8,7 +8,7 @@ import time
 
 from omegaconf import OmegaConf
 
-from nanosysid import benchmark, discover
+from nanosysid import discover, protocol
 from nanosysid.config import load_params
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.predictors import build_from_options
@@ -17,10 +17,10 @@ from nanosysid.vehicle import Vehicle
 
 def main() -> dict[str, float]:
     cfg = load_params()
-    bench = benchmark.load(cfg.paths.split)
+    bench = protocol.load(cfg.paths.split)
     oracle = build_from_options(OmegaConf.to_container(cfg.discover.oracle, resolve=True)) if cfg.discover.oracle else None
     t0 = time.perf_counter()
-    benchmark.evaluate(AugmentedPredictor(AugmentedStep(Vehicle())), bench.test)
+    protocol.evaluate(AugmentedPredictor(AugmentedStep(Vehicle())), bench.test)
     t_eval = time.perf_counter() - t0
     t0 = time.perf_counter()
     discover.run(bench.train, bench.test, oracle=oracle, analysis=False)

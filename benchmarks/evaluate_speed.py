@@ -1,4 +1,4 @@
-"""Speed of `benchmark.evaluate` on a test set the size of the paper's, against a plain loop.
+"""Speed of `protocol.evaluate` on a test set the size of the paper's, against a plain loop.
 
 The paper's test set (three Melon runs, 19,497 samples) gives about 19,350 windows of
 H = 50. The reference is the obvious implementation: a Python loop over windows and over
@@ -15,7 +15,7 @@ import time
 import numpy as np
 import torch
 
-from nanosysid import benchmark, predictors, so3, synthetic
+from nanosysid import predictors, protocol, so3, synthetic
 
 H = 50
 SUBSET = 200  # windows for the loop reference
@@ -43,11 +43,11 @@ def main() -> dict[str, float]:
     predict = predictors.predictor("physics")
     n = sum(len(f) - H for f in flights)
 
-    benchmark.evaluate(predict, flights[:1], horizon=H)  # warm-up (allocator, kernels)
+    protocol.evaluate(predict, flights[:1], horizon=H)  # warm-up (allocator, kernels)
     times = []
     for _ in range(3):
         t0 = time.perf_counter()
-        scores = benchmark.evaluate(predict, flights, horizon=H)
+        scores = protocol.evaluate(predict, flights, horizon=H)
         times.append(time.perf_counter() - t0)
     t_vec = min(times)
 
@@ -55,12 +55,12 @@ def main() -> dict[str, float]:
     ref = loop_reference(predict.step, flights[0], SUBSET)
     t_loop = (time.perf_counter() - t0) * n / SUBSET
 
-    sub = benchmark.Flight(flights[0].name, flights[0].t[: SUBSET + H], flights[0].u[: SUBSET + H], flights[0].y[: SUBSET + H])
-    check = benchmark.evaluate(predict, [sub], horizon=H)
+    sub = protocol.Flight(flights[0].name, flights[0].t[: SUBSET + H], flights[0].u[: SUBSET + H], flights[0].y[: SUBSET + H])
+    check = protocol.evaluate(predict, [sub], horizon=H)
     same = all(np.allclose(check.mae[k], ref[k], rtol=1e-9, atol=1e-12) for k in ref)
 
     print(f"windows: {n} x {H} steps (3 flights of {len(flights[0])} samples)")
-    print(f"benchmark.evaluate(physics): {t_vec:.3f} s (best of 3)")
+    print(f"protocol.evaluate(physics): {t_vec:.3f} s (best of 3)")
     print(f"per-window, per-step loop:   {t_loop:.1f} s (measured on {SUBSET} windows, scaled to {n})")
     print(f"speed-up: {t_loop / t_vec:.0f}x; same MAE on the subset: {same}")
     print(f"SimErr p {scores.simerr['p']:.4f} m, v {scores.simerr['v']:.4f} m/s")

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from omegaconf import OmegaConf
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.config import load_params
 from nanosysid.predictors import build_from_options
 from nanosysid.viz.rerun import write_recording
@@ -19,14 +19,14 @@ def main() -> dict[str, float]:
     cfg = load_params()
     H = int(cfg.eval.horizon)
     t0 = time.perf_counter()
-    bench = benchmark.load(cfg.paths.split, horizon=H)
+    bench = protocol.load(cfg.paths.split, horizon=H)
     predictors = {n: build_from_options(OmegaConf.to_container(m, resolve=True)) for n, m in cfg.models.items()}
     t_load = time.perf_counter() - t0
     t_pred = t_write = 0.0
     with tempfile.TemporaryDirectory() as d:
         for flight in bench.test:
             t0 = time.perf_counter()
-            rollouts = {name: benchmark.predictions(p, flight, horizon=H) for name, p in predictors.items()}
+            rollouts = {name: protocol.predictions(p, flight, horizon=H) for name, p in predictors.items()}
             t_pred += time.perf_counter() - t0
             t0 = time.perf_counter()
             write_recording(flight, rollouts, Path(d) / f"{flight.name}.rrd", stride=int(cfg.visualize.stride))

@@ -7,7 +7,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from nanosysid import benchmark, identify
+from nanosysid import identify, protocol
 from nanosysid.dataio import atomic_file, json_text
 from nanosysid.report import paper, tables
 from nanosysid.report.stats import stats_markdown, trajectory_stats
@@ -21,7 +21,7 @@ def main(cfg: DictConfig) -> None:
     """``<paths.sim_report>/stats.md`` (and ``stats.json``: the figures and each criterion's verdict)."""
     names = [m for m in paper.PAPER_MODELS if m in cfg.models]
     scores = tables.load_scores(cfg.paths.eval, names)
-    bench = benchmark.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
+    bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
     comparison = paper.compare_results(scores)
     source = str(cfg.data.source)
     parts = ["# The dataset against the paper's real flights", "",

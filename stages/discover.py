@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from nanosysid import benchmark, discover
+from nanosysid import discover, protocol
 from nanosysid.dataio import atomic_dir
 from nanosysid.discover.model import save_discovered
 from nanosysid.effects import entry
@@ -33,7 +33,7 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
         state = state_effects(dict(options.get("effects") or DEFAULT_WORLD))
         limit = build_from_options({**options, "effects": state, "seed": int(options.get("seed", 0))})
     H = int(cfg.eval.horizon)
-    bench = benchmark.load(cfg.paths.split, horizon=H)
+    bench = protocol.load(cfg.paths.split, horizon=H)
     vehicle = identified_vehicle(vehicle_of(cfg), dc.identified)
     delays = np.arange(1, int(round(float(dc.delay_max) / float(dc.delay_step))) + 1) * float(dc.delay_step)
     result = discover.run(bench.train, bench.test, vehicle=vehicle, alpha=float(dc.alpha), share=float(dc.share),

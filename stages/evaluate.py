@@ -7,7 +7,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.dataio import atomic_dir
 from nanosysid.predictors import build_from_options, step_cost
 from nanosysid.report.tables import results_table_md
@@ -16,14 +16,14 @@ from stages.common import model_options, run_stage
 log = logging.getLogger("nanosysid.evaluate")
 
 
-def metrics_payload(scores: benchmark.Scores, table_horizons: list[int], cost: dict[str, Any]) -> dict[str, Any]:
+def metrics_payload(scores: protocol.Scores, table_horizons: list[int], cost: dict[str, Any]) -> dict[str, Any]:
     """The content of ``metrics.json``, the headline figures DVC shows and compares: SimErr,
     the MAE at the table's horizons, and the model's cost per step."""
     return {"simerr": scores.simerr, **{f"h{h}": scores.at(h) for h in table_horizons},
             "cost": {k: v for k, v in cost.items() if k in ("params", "flops")}}
 
 
-def main(cfg: DictConfig, name: str) -> benchmark.Scores:
+def main(cfg: DictConfig, name: str) -> protocol.Scores:
     """Score ``cfg.models[name]`` on the test flights of ``cfg.paths.split``.
 
     Writes to ``<paths.eval>/<name>/``: ``scores.json`` (MAE curves, per flight),
@@ -31,9 +31,9 @@ def main(cfg: DictConfig, name: str) -> benchmark.Scores:
     """
     options = model_options(cfg, name)
     horizon = int(cfg.eval.horizon)
-    bench = benchmark.load(cfg.paths.split, horizon=horizon)
+    bench = protocol.load(cfg.paths.split, horizon=horizon)
     predict = build_from_options(options)
-    scores = benchmark.evaluate(predict, bench.test, horizon=horizon, batch_size=int(cfg.eval.batch_size))
+    scores = protocol.evaluate(predict, bench.test, horizon=horizon, batch_size=int(cfg.eval.batch_size))
     out = Path(cfg.paths.eval) / name
     # table horizons beyond a shortened evaluation horizon have no value to show
     table_h = [h for h in cfg.eval.table_horizons if h <= horizon]

@@ -8,7 +8,7 @@ import numpy as np
 import torch
 from omegaconf import DictConfig
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.errors import ExportError
 from nanosysid.export.steps import Exportable, check_inputs, export_onnx, onnx_outputs
 from nanosysid.dataio import atomic_dir, json_text
@@ -33,7 +33,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     step's cost, into ``<export.out_dir>/<name>/export/`` (replaced as a whole)."""
     ex = exportable_of(cfg, name)
     ec = cfg.export
-    bench = benchmark.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
+    bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
     inputs = check_inputs(ex, bench.test, int(ec.onnx_samples), int(cfg.seed))
     out = export_dir(cfg, name)
     with atomic_dir(out, inputs=[cfg.paths.split]) as tmp:

@@ -5,7 +5,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from nanosysid import benchmark, identify
+from nanosysid import identify, protocol
 from nanosysid.dataio import parse_flight_name, read_flight_csv
 from nanosysid.errors import DataError
 from nanosysid.viz.identify import identify_figure
@@ -16,7 +16,7 @@ log = logging.getLogger("nanosysid.identify")
 
 def main(cfg: DictConfig) -> None:
     c = cfg.identify
-    bench = benchmark.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
+    bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
     if not bench.train:
         raise DataError(f"{Path(cfg.paths.split) / 'train'}: no flight CSV files to fit k_F and k_M on")
     vehicle = vehicle_of(cfg)

@@ -7,7 +7,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.errors import ConfigError, ExportError
 from nanosysid.export import mcu
@@ -33,7 +33,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     if generated != ex.c.source:
         raise ExportError(f"{src / 'model.c'}: differs from the C generated from the model now; rerun export@{name}")
 
-    bench = benchmark.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
+    bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
     flight = pick_flight(bench.test, mc.flight, "export.mcu.flight")
     start, k = int(mc.start), int(mc.steps)
     if start + k > len(flight):

@@ -7,12 +7,12 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.dataio import atomic_file
 from nanosysid.report import tables
 from nanosysid.report.paper import PAPER_STATS
 from nanosysid.report.stats import STAT_LABELS, trajectory_stats
-from nanosysid.viz import benchmark as figures
+from nanosysid.viz import figures
 from nanosysid.viz.signals import ahead
 from nanosysid.predictors import build_from_options
 from stages.common import model_options, pick_flight, run_stage
@@ -42,7 +42,7 @@ def main(cfg: DictConfig) -> None:
     costs = tables.load_costs(cfg.paths.eval, names, cfg.paths.get("export"))
     H = next(iter(rows.values())).horizon
 
-    bench = benchmark.load(cfg.paths.split, horizon=H)
+    bench = protocol.load(cfg.paths.split, horizon=H)
     flight = pick_flight(bench.test, rc.lineplot.flight, "report.lineplot.flight")
     fig_dir = Path(rc.figures)
     figures.mae_horizon_figure(rows, fig_dir / "mae_horizon.png")
@@ -54,7 +54,7 @@ def main(cfg: DictConfig) -> None:
     lo, hi = (inside[0], inside[-1]) if len(inside) else (0, len(flight) - 1)
     margin = int(rc.lineplot.smooth)
     starts = np.arange(max(lo - margin - H, 0), min(hi + margin - H + 1, len(flight) - H))
-    ahead_rows = {name: ahead(benchmark.predictions(p, flight, horizon=H, starts=starts), H, len(flight), starts)
+    ahead_rows = {name: ahead(protocol.predictions(p, flight, horizon=H, starts=starts), H, len(flight), starts)
                   for name, p in ((n, build_from_options(model_options(cfg, n))) for n in shown)}
     figures.predictions_figure(flight, ahead_rows, fig_dir / "predictions.png", horizon=H,
                                window=(a, b), smooth=int(rc.lineplot.smooth))

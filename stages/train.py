@@ -5,7 +5,7 @@ from typing import Any
 
 from omegaconf import DictConfig
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.dataio import atomic_dir, json_text
 from nanosysid.errors import ConfigError
 from nanosysid.models.training import network_spec, optimiser_parts, physics_base, train_model
@@ -18,7 +18,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
         raise ConfigError(f"models.{name}: not a learned model (kind {m['kind']!r})")
     t = cfg.models[name].train
     optimizer, scheduler = optimiser_parts(plain(t.optimizer), plain(t.scheduler), f"models.{name}.train")
-    bench = benchmark.load(cfg.paths.split, horizon=int(t.horizon))
+    bench = protocol.load(cfg.paths.split, horizon=int(t.horizon))
     # the training curves are written beside the old ones and swapped in whole at the end, so
     # a killed run leaves the previous model's logs, not a mixture
     with atomic_dir(Path(cfg.paths.train_logs) / name, inputs=[cfg.paths.split]) as log_dir:

@@ -6,7 +6,7 @@ from pathlib import Path
 
 from omegaconf import DictConfig
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.dataio import atomic_dir
 from nanosysid.viz.rerun import write_recording
 from nanosysid.predictors import build_from_options
@@ -18,7 +18,7 @@ log = logging.getLogger("nanosysid.visualize")
 def main(cfg: DictConfig) -> list[Path]:
     """One rerun recording per test flight in ``visualize.out_dir`` (replaced as a whole)."""
     H = int(cfg.eval.horizon)
-    bench = benchmark.load(cfg.paths.split, horizon=H)
+    bench = protocol.load(cfg.paths.split, horizon=H)
     models = {n: build_from_options(model_options(cfg, n)) for n in cfg.models}
     out = Path(cfg.visualize.out_dir)
     verdicts = None
@@ -28,7 +28,7 @@ def main(cfg: DictConfig) -> list[Path]:
     written = []
     with atomic_dir(out, inputs=[cfg.paths.split]) as tmp:
         for flight in bench.test:
-            rollouts = {name: benchmark.predictions(p, flight, horizon=H) for name, p in models.items()}
+            rollouts = {name: protocol.predictions(p, flight, horizon=H) for name, p in models.items()}
             write_recording(flight, rollouts, tmp / f"{flight.name}.rrd", stride=int(cfg.visualize.stride),
                             verdicts=verdicts)
             written.append(out / f"{flight.name}.rrd")

@@ -7,7 +7,7 @@ import re
 import numpy as np
 import pytest
 
-from nanosysid import benchmark, synthetic
+from nanosysid import protocol, synthetic
 from nanosysid.dataio import OWNER, atomic_dir, atomic_file, json_text, read_flight_csv, write_flight_csv
 from nanosysid.errors import ConfigError, DataError
 
@@ -22,7 +22,7 @@ def dataset(tmp_path):
 
 def test_round_trip(dataset):
     root, flights = dataset
-    bench = benchmark.load(root, horizon=50)
+    bench = protocol.load(root, horizon=50)
     assert [f.name for f in bench.train] == ["square_d_run1"]
     got = bench.test[0]
     assert np.allclose(got.y, flights[1].y, rtol=1e-9, atol=1e-12)
@@ -78,7 +78,7 @@ def test_bad_input_names_file_column_and_row(dataset, damage, pattern):
     path = root / "test" / "melon_d_run1.csv"
     corrupt(path, damage)
     with pytest.raises(DataError, match=pattern) as e:
-        benchmark.load(root)
+        protocol.load(root)
     assert str(path) in str(e.value)
 
 
@@ -87,22 +87,22 @@ def test_repeated_timestamp_is_rejected(dataset):
     path = root / "train" / "square_d_run1.csv"
     corrupt(path, lambda h, r: (h, r[:10] + [r[9]] + r[10:]))
     with pytest.raises(DataError, match=r"square_d_run1.csv: column 't', row 10 \(line 12\): time does not increase"):
-        benchmark.load(root)
+        protocol.load(root)
 
 
 def test_too_few_rows(dataset):
     root, _ = dataset
     with pytest.raises(DataError, match=r"square_d_run1.csv: 80 rows, fewer than the 101 one window needs"):
-        benchmark.load(root, horizon=100)
+        protocol.load(root, horizon=100)
 
 
 def test_not_a_csv_and_missing_folder(tmp_path, dataset):
     root, _ = dataset
     (root / "test" / "melon_d_run1.csv").write_bytes(b"")
     with pytest.raises(DataError, match="not a readable CSV"):
-        benchmark.load(root)
+        protocol.load(root)
     with pytest.raises(DataError, match="no such folder"):
-        benchmark.load(tmp_path / "nowhere")
+        protocol.load(tmp_path / "nowhere")
 
 
 def test_small_quaternion_drift_is_accepted(tmp_path):
@@ -215,7 +215,7 @@ def test_sample_rate_gaps_and_header_are_checked(dataset, damage, pattern):
     path = root / "test" / "melon_d_run1.csv"
     corrupt(path, damage)
     with pytest.raises(DataError, match=pattern) as e:
-        benchmark.load(root, horizon=10)
+        protocol.load(root, horizon=10)
     assert str(path) in str(e.value) and "np.float64" not in str(e.value)
 
 
@@ -223,7 +223,7 @@ def test_a_flight_in_train_and_test_is_refused(dataset):
     root, _ = dataset
     (root / "test" / "square_d_run1.csv").write_bytes((root / "train" / "square_d_run1.csv").read_bytes())
     with pytest.raises(DataError, match=r"flight square_d_run1 is in both train/ and test/"):
-        benchmark.load(root)
+        protocol.load(root)
 
 
 def test_file_names_links_and_folders_are_checked(dataset):
@@ -231,15 +231,15 @@ def test_file_names_links_and_folders_are_checked(dataset):
     bad = root / "train" / "my flight.csv"
     bad.write_bytes((root / "train" / "square_d_run1.csv").read_bytes())
     with pytest.raises(DataError, match=r"my flight.csv: flight name 'my flight' is not of the form"):
-        benchmark.load(root)
+        protocol.load(root)
     bad.unlink()
     (root / "train" / "chirp_d_run2.csv").symlink_to(root / "nowhere.csv")
     with pytest.raises(DataError, match=r"chirp_d_run2.csv: no such file \(a broken link\)"):
-        benchmark.load(root)
+        protocol.load(root)
     (root / "train" / "chirp_d_run2.csv").unlink()
     (root / "train" / "chirp_d_run3.csv").mkdir()
     with pytest.raises(DataError, match=r"chirp_d_run3.csv: a folder, not a flight CSV file"):
-        benchmark.load(root)
+        protocol.load(root)
 
 
 def test_an_empty_test_folder_is_one_clear_error(dataset):
@@ -247,7 +247,7 @@ def test_an_empty_test_folder_is_one_clear_error(dataset):
     for f in (root / "test").glob("*.csv"):
         f.unlink()
     with pytest.raises(DataError, match=rf"{re.escape(str(root / 'test'))}: no flight CSV files"):
-        benchmark.load(root)
+        protocol.load(root)
 
 
 def test_json_the_project_writes_is_strict_and_says_what_was_not_finite():

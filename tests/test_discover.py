@@ -228,13 +228,13 @@ def test_all_six_catalogue_effects_each_named_or_ambiguous():
 
 def impact(world, effect):
     """Share of the nominal SimErr an effect causes: what the oracle loses without knowing it."""
-    from nanosysid import benchmark
+    from nanosysid import protocol
 
     r = discovered(world)
     eff, fn, seed = WORLDS[world]
     rest = {k: v for k, v in eff.items() if k != effect}
     test = [f for f in _flights[world] if f.trajectory == "melon"]
-    without = benchmark.evaluate(sim.oracle(rest, seed=seed, extra_wrench=fn), test).simerr
+    without = protocol.evaluate(sim.oracle(rest, seed=seed, extra_wrench=fn), test).simerr
     return max((without[q] - r.oracle.simerr[q]) / r.before.simerr[q] for q in without)
 
 
@@ -256,7 +256,7 @@ def test_discovery_closes_more_of_the_gap_than_plain_sindy():
 
 
 def test_model_round_trips_through_its_file_and_reports(tmp_path):
-    from nanosysid import benchmark
+    from nanosysid import protocol
     from nanosysid.discover.model import load_discovered, save_discovered
     from nanosysid.effects import entry
     from nanosysid.report.discovery import write_report
@@ -266,8 +266,8 @@ def test_model_round_trips_through_its_file_and_reports(tmp_path):
     save_discovered(tmp_path / "model.json", r.vehicle, effects, r.model.delay)
     back = load_discovered(tmp_path / "model.json")
     flights = [sim.simulate_flight("melon", 1, effects={}, seed=3, cfg=CFG, extra_wrench=drag_above)]
-    a = benchmark.evaluate(r.model, flights, horizon=20)
-    b = benchmark.evaluate(back, flights, horizon=20)
+    a = protocol.evaluate(r.model, flights, horizon=20)
+    b = protocol.evaluate(back, flights, horizon=20)
     assert a.simerr == b.simerr
     write_report(r, tmp_path / "report")
     text = (tmp_path / "report" / "report.md").read_text()

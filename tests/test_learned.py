@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, predictors, so3, synthetic
+from nanosysid import predictors, protocol, so3, synthetic
 from nanosysid.models.learned import (LearnedPredictor, build_model, content_hash, from_tilde, load_checkpoint,
                                       save_checkpoint, to_tilde)
 from nanosysid.models.physics import PhysicsStep
@@ -50,7 +50,7 @@ def test_parameter_counts_close_to_the_paper(arch):
 @pytest.mark.parametrize("arch", ARCHS)
 def test_one_step_and_multi_step_shapes(arch, flights):
     model = make(arch).double()
-    y0, u, _ = benchmark.windows(flights[0], 7)
+    y0, u, _ = protocol.windows(flights[0], 7)
     yt0 = to_tilde(torch.from_numpy(y0[:5]))
     state = model.init_state(yt0)
     yt1, _ = model.step(yt0, torch.from_numpy(u[:5, 0]), state)
@@ -63,7 +63,7 @@ def test_phys_res_starts_as_the_physics_model(flights):
     model = make("phys_res")
     ds = window_tensors(flights, 10)
     model.set_statistics(ds.tensors[0], ds.tensors[1].reshape(-1, 4), ds.tensors[0][1:] - ds.tensors[0][:-1])
-    y0, u, _ = benchmark.windows(flights[0], 10)
+    y0, u, _ = protocol.windows(flights[0], 10)
     ours = LearnedPredictor(model)(y0[:50], u[:50])
     phys = predictors.predictor("physics")(y0[:50], u[:50])
     assert np.allclose(ours, phys, atol=1e-9)

@@ -6,13 +6,13 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, predictors, so3, synthetic
+from nanosysid import predictors, protocol, so3, synthetic
 from nanosysid.report import tables as report
 from nanosysid.viz.signals import ahead, euler_deg
 
 
 def scores(level, H=50):
-    return benchmark.Scores(mae={k: np.full(H, level) for k in "pvRw"}, n_windows=1)
+    return protocol.Scores(mae={k: np.full(H, level) for k in "pvRw"}, n_windows=1)
 
 
 def test_results_table_bolds_the_best_model_not_the_oracle():
@@ -59,13 +59,13 @@ def test_mae_csv_is_one_row_per_model_and_horizon():
 def test_ahead_places_each_prediction_h_samples_after_its_start():
     flight = synthetic.synthetic_flights(["melon_s_run1"], 80, seed=1)[0]
     H = 10
-    pred = benchmark.predictions(predictors.predictor("physics"), flight, horizon=H)
+    pred = protocol.predictions(predictors.predictor("physics"), flight, horizon=H)
     assert pred.shape == (70, H, 13)
     a = ahead(pred, H, len(flight))
     assert np.isnan(a[:H]).all() and np.isnan(a[H + 70:]).all()
     assert np.array_equal(a[H + 5], pred[5, H - 1])
     # a subset of starts is the same rollout as the full set
-    sub = benchmark.predictions(predictors.predictor("physics"), flight, horizon=H, starts=np.array([5, 30]))
+    sub = protocol.predictions(predictors.predictor("physics"), flight, horizon=H, starts=np.array([5, 30]))
     assert np.allclose(sub, pred[[5, 30]])
     b = ahead(sub, H, len(flight), starts=np.array([5, 30]))
     assert np.allclose(b[[H + 5, H + 30]], a[[H + 5, H + 30]]) and np.isnan(b).all(axis=1).sum() == len(flight) - 2
@@ -107,7 +107,7 @@ def paper_like(model, scale=None):
         m = np.full(50, (simerr - h1 - h10 - h50) / 47)
         m[0], m[9], m[49] = h1, h10, h50
         mae[k] = m * f
-    return benchmark.Scores(mae=mae, n_windows=1)
+    return protocol.Scores(mae=mae, n_windows=1)
 
 
 def test_the_papers_own_results_meet_every_criterion():

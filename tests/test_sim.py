@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, predictors, sim, so3
+from nanosysid import predictors, protocol, sim, so3
 from nanosysid.dataio import write_flight_csv
 from nanosysid.errors import PredictionError
 from nanosysid.sim import world as fx
@@ -228,9 +228,9 @@ def test_inertia_offset_is_the_true_body():
     J = tuple(j * k for j, k in zip(V.inertia, (1.15, 1.15, 1.25)))
     true_body = predictors.predictor("physics_full", vehicle=Vehicle(inertia=J))
     nominal = predictors.predictor("physics_full")
-    err = benchmark.evaluate(true_body, [f]).simerr["w"]
-    assert err < 1.5 * benchmark.evaluate(nominal, [none]).simerr["w"]
-    assert benchmark.evaluate(nominal, [f]).simerr["w"] > 3 * err
+    err = protocol.evaluate(true_body, [f]).simerr["w"]
+    assert err < 1.5 * protocol.evaluate(nominal, [none]).simerr["w"]
+    assert protocol.evaluate(nominal, [f]).simerr["w"] > 3 * err
 
 
 def test_telemetry_delay_shifts_recorded_rotor_speeds():
@@ -302,9 +302,9 @@ def test_every_effect_is_visible_to_the_nominal_model():
     errs = []
     for w in worlds:
         f = sim.simulate_flight("melon", 1, effects=w, noise=False, cfg=SHORT)
-        errs.append(benchmark.evaluate(full, [f], horizon=50).mae["p"][49])
+        errs.append(protocol.evaluate(full, [f], horizon=50).mae["p"][49])
         if not w:
-            assert errs[0] < 0.01 * benchmark.evaluate(naive, [f], horizon=50).mae["p"][49]
+            assert errs[0] < 0.01 * protocol.evaluate(naive, [f], horizon=50).mae["p"][49]
     for e, err in zip(sim.EFFECTS, errs[1:]):
         assert err > 1.3 * errs[0], f"{e}: {err:.4g} vs {errs[0]:.4g} without effects"
 
@@ -386,7 +386,7 @@ def test_a_constant_extra_force_moves_the_flight_as_newton_says():
     err = {}
     for name, wrench in (("pushed", push), ("free", None)):
         f = sim.simulate_flight("melon", 1, effects={}, noise=False, cfg=SHORT, extra_wrench=wrench)
-        y0, u, y = (a[f.t[:len(f) - 10] >= 1.0] for a in benchmark.windows(f, 10))
+        y0, u, y = (a[f.t[:len(f) - 10] >= 1.0] for a in protocol.windows(f, 10))
         err[name] = y[:, -1, :3] - predictors.predictor("physics_full")(y0, u)[:, -1, :3]
         if wrench is not None:
             R = so3.quat_to_rotmat(torch.from_numpy(np.ascontiguousarray(y0[:, 6:10]))).numpy()
@@ -410,12 +410,12 @@ def test_the_oracle_knows_turbulence_and_a_users_wrench():
 
     world = {"turbulence": 1.0}
     f = sim.simulate_flight("melon", 1, effects=world, seed=4, noise=False, cfg=SHORT, extra_wrench=push)
-    oracle = benchmark.evaluate(sim.oracle(world, seed=4, extra_wrench=push), [f])
-    full = benchmark.evaluate(predictors.predictor("physics_full"), [f])
+    oracle = protocol.evaluate(sim.oracle(world, seed=4, extra_wrench=push), [f])
+    full = protocol.evaluate(predictors.predictor("physics_full"), [f])
     for k in "pvRw":
         assert oracle.simerr[k] < 0.02 * full.simerr[k]
     # another seed is another realisation of the turbulence: the oracle no longer knows it
-    wrong = benchmark.evaluate(sim.oracle(world, seed=5, extra_wrench=push), [f])
+    wrong = protocol.evaluate(sim.oracle(world, seed=5, extra_wrench=push), [f])
     assert wrong.simerr["w"] > 20 * oracle.simerr["w"]
     with pytest.raises(PredictionError, match="t0"):
         sim.oracle(world, seed=4)(f.y[:2], f.u[None, :5].repeat(2, 0))
@@ -424,9 +424,9 @@ def test_the_oracle_knows_turbulence_and_a_users_wrench():
 def test_oracle_is_the_physical_limit():
     world = {"rotor_drag": 1.0, "com_offset": 1.0, "motor_asymmetry": 1.0}
     f = sim.simulate_flight("melon", 1, effects=world, noise=False, cfg=SHORT)
-    oracle = benchmark.evaluate(sim.oracle(world), [f])
-    phys = benchmark.evaluate(predictors.predictor("physics"), [f])
-    full = benchmark.evaluate(predictors.predictor("physics_full"), [f])
+    oracle = protocol.evaluate(sim.oracle(world), [f])
+    phys = protocol.evaluate(predictors.predictor("physics"), [f])
+    full = protocol.evaluate(predictors.predictor("physics_full"), [f])
     for k in "pvRw":
         assert oracle.simerr[k] < 0.2 * min(phys.simerr[k], full.simerr[k])
     assert predictors.predictor("oracle", effects=world)(f.y[:2], f.u[None, :5].repeat(2, 0)).shape == (2, 5, 13)

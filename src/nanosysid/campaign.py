@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from nanosysid import benchmark, discover, identify, sim, so3
+from nanosysid import discover, identify, protocol, sim, so3
 from nanosysid.preprocess.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence
 from nanosysid.effects import LIBRARY
 from nanosysid.errors import PredictionError
@@ -237,12 +237,12 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
     # world loses that effect (largest relative change over the four quantities)
     impact = {}
     for e, flight in (without or {}).items():
-        other = benchmark.evaluate(r.nominal, [flight], horizon=horizon).simerr
+        other = protocol.evaluate(r.nominal, [flight], horizon=horizon).simerr
         impact[e] = float(max(abs(r.before.simerr[q] - other[q]) / r.before.simerr[q] for q in other))
     # the gap a model of the state can close: to the oracle that knows every effect but the
     # time-varying ones (turbulence, the thrust fluctuation)
     state = nature.state_effects(world.effects)
-    reachable = benchmark.evaluate(sim.oracle(state, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra),
+    reachable = protocol.evaluate(sim.oracle(state, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra),
                                    test, horizon=horizon).simerr if state != world.effects else r.oracle.simerr
     named = [f.name for f in r.findings if f.verdict == "named"]
     ambiguous = [list(f.alternatives) for f in r.findings if f.verdict == "ambiguous"]

@@ -7,7 +7,7 @@ import shutil
 
 import pytest
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.dataio import write_flight_csv
 from nanosysid.errors import DataError
 from nanosysid.splitting import split_folder
@@ -34,7 +34,7 @@ def folder(tmp_path, flights):
 
 
 def load_bench(root):
-    return benchmark.load(root / "bench", horizon=10)
+    return protocol.load(root / "bench", horizon=10)
 
 
 def split_flat(root):
@@ -66,12 +66,12 @@ CASES = [
 
 
 MATRIX = [(entry, case, change, words) for case, bench, flat, words in CASES
-          for entry, change in (("benchmark.load", bench), ("split", flat)) if change is not None]
+          for entry, change in (("protocol.load", bench), ("split", flat)) if change is not None]
 
 
 @pytest.mark.parametrize("entry,case,change,words", MATRIX, ids=[f"{m[0]}: {m[1]}" for m in MATRIX])
 def test_a_flight_twice_or_out_of_sight_is_one_clear_error(folder, entry, case, change, words):
-    action = load_bench if entry == "benchmark.load" else split_flat
+    action = load_bench if entry == "protocol.load" else split_flat
     change(folder)
     with pytest.raises(DataError, match=words) as e:
         action(folder)

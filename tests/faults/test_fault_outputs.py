@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from nanosysid import benchmark, guard
+from nanosysid import guard, protocol
 from nanosysid.dataio import OWNER, atomic_dir, atomic_file, read_flight_csv, write_flight_csv
 from nanosysid.errors import ConfigError
 from nanosysid.synthetic import synthetic_flights
@@ -174,7 +174,7 @@ def test_a_template_written_onto_the_flight_it_scores_is_refused(flight_csv):
     flight = read_flight_csv(flight_csv)
     before = flight_csv.read_bytes()
     with pytest.raises(ConfigError, match="is the input"):
-        benchmark.write_template(lambda y0, u: np.repeat(y0[:, None], u.shape[1], 1), flight, flight_csv, horizon=5)
+        protocol.write_template(lambda y0, u: np.repeat(y0[:, None], u.shape[1], 1), flight, flight_csv, horizon=5)
     assert flight_csv.read_bytes() == before
 
 

@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.errors import DataError
 from nanosysid.synthetic import synthetic_flights
 
@@ -73,9 +73,9 @@ BAD = [
 ]
 
 ENTRY_POINTS = {
-    "evaluate": lambda f: benchmark.evaluate(hold, [f], horizon=5),
-    "predictions": lambda f: benchmark.predictions(hold, f, horizon=5),
-    "template_frame": lambda f: benchmark.template_frame(hold, f, horizon=5),
+    "evaluate": lambda f: protocol.evaluate(hold, [f], horizon=5),
+    "predictions": lambda f: protocol.predictions(hold, f, horizon=5),
+    "template_frame": lambda f: protocol.template_frame(hold, f, horizon=5),
 }
 
 
@@ -93,8 +93,8 @@ def test_a_bad_truth_is_blamed_on_the_flight_not_the_predictor(flight, entry, ca
 def test_a_good_flight_still_scores_and_a_sound_jitter_is_accepted(flight):
     t = flight.t + np.random.default_rng(0).normal(0, 2e-5, len(flight.t))  # clock jitter of 20 µs
     jittered = dataclasses.replace(flight, t=np.sort(t))
-    a = benchmark.evaluate(hold, [flight], horizon=5)
-    b = benchmark.evaluate(hold, [jittered], horizon=5)
+    a = protocol.evaluate(hold, [flight], horizon=5)
+    b = protocol.evaluate(hold, [jittered], horizon=5)
     assert np.isfinite(a.simerr["p"]) and a.simerr == b.simerr
 
 
@@ -110,4 +110,4 @@ def test_score_checks_its_truth(case):
     else:
         y[1, 2, 6:10] *= 1.5
     with pytest.raises(DataError, match=r"score: the tru(e|th).*window 1, step 3"):
-        benchmark.score(y, pred)
+        protocol.score(y, pred)

@@ -72,7 +72,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.dataio import Flight
 from nanosysid.discover.analysis import disagreement
 from nanosysid.discover.assemble import assemble, sindy_baseline
@@ -164,7 +164,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     nominal = AugmentedPredictor(AugmentedStep(v), name="nominal")
 
     def score(predictor):
-        return benchmark.evaluate(predictor, test_flights, horizon=horizon, batch_size=batch_size)
+        return protocol.evaluate(predictor, test_flights, horizon=horizon, batch_size=batch_size)
 
     result = DiscoveryResult(findings, score(nominal), score(model), model, nominal, augmented_vehicle,
                              selection.rounds, alpha, floor, search.noise, score(oracle) if oracle else None)

@@ -9,7 +9,7 @@ import numpy as np
 import torch
 from scipy.signal import welch
 
-from nanosysid import benchmark, so3
+from nanosysid import protocol, so3
 from nanosysid.dataio import Flight
 from nanosysid.effects import CHANNELS
 from nanosysid.discover.fit import EDGE, flight_data
@@ -110,11 +110,11 @@ def _rollout_shares(result, search, flights, horizon, batch_size) -> dict[str, A
         for f, res in zip(flights, residual):
             r = np.zeros((len(f), 6))
             r[EDGE:-EDGE, c] = res[:, c]
-            y0, u, y = benchmark.windows(f, horizon)
+            y0, u, y = protocol.windows(f, horizon)
             extra = np.lib.stride_tricks.sliding_window_view(r, horizon, axis=0)[:len(y0)].transpose(0, 2, 1)
             pred = np.concatenate([nominal(y0[s:s + batch_size], u[s:s + batch_size], extra[s:s + batch_size])
                                    for s in range(0, len(y0), batch_size)])
-            s = benchmark.score(y, pred)
+            s = protocol.score(y, pred)
             for k in sums:
                 sums[k].append(s.simerr[k])
         rows[channel] = {k: float(np.mean(v)) for k, v in sums.items()}

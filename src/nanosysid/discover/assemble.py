@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 from typing import Any, Sequence
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.dataio import Flight
 from nanosysid.discover import generic
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
@@ -47,7 +47,7 @@ def assemble(vehicle: Vehicle, chosen: Sequence[str], coef: dict[str, list[float
 def _stable(model: AugmentedPredictor, flights: Sequence[Flight], horizon: int, batch_size: int) -> bool:
     """Whether the model's rollouts stay finite over every window of ``flights``."""
     try:
-        benchmark.evaluate(model, flights, horizon=horizon, batch_size=batch_size)
+        protocol.evaluate(model, flights, horizon=horizon, batch_size=batch_size)
     except PredictionError:
         return False
     return True
@@ -64,7 +64,7 @@ def sindy_baseline(search: Search, vehicle: Vehicle, test_flights, horizon, batc
                          list(kept.values()))
     model = AugmentedPredictor(step, name="sindy")
     try:
-        scores = benchmark.evaluate(model, test_flights, horizon=horizon, batch_size=batch_size)
+        scores = protocol.evaluate(model, test_flights, horizon=horizon, batch_size=batch_size)
     except PredictionError:  # its rollouts diverge: the plain fit's own failure, recorded as such
         return {"terms": shown, "simerr": {q: math.inf for q in QUANTITIES}, "scores": None, "model": model,
                 "diverged": True}

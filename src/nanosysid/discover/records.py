@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from nanosysid import benchmark
+from nanosysid import protocol
 from nanosysid.discover.model import AugmentedPredictor
 from nanosysid.effects import LIBRARY
 from nanosysid.vehicle import Vehicle
@@ -141,8 +141,8 @@ class DiscoveryResult:
     ``rounds`` holds every round's candidates, best held-out gain first."""
 
     findings: list[Finding]
-    before: benchmark.Scores
-    after: benchmark.Scores
+    before: protocol.Scores
+    after: protocol.Scores
     model: AugmentedPredictor
     nominal: AugmentedPredictor
     vehicle: Vehicle
@@ -150,10 +150,10 @@ class DiscoveryResult:
     alpha: float
     floor: float
     noise: np.ndarray
-    oracle: benchmark.Scores | None = None
+    oracle: protocol.Scores | None = None
     sindy: dict[str, Any] | None = None
     analysis: dict[str, Any] = field(default_factory=dict)
-    limit: benchmark.Scores | None = None
+    limit: protocol.Scores | None = None
 
     @property
     def found(self) -> list[Finding]:

@@ -20,7 +20,7 @@ import torch
 from torch import Tensor
 from torch.utils.data import DataLoader, TensorDataset
 
-from nanosysid.benchmark import windows
+from nanosysid.protocol import windows
 from nanosysid.dataio import Flight
 from nanosysid.errors import ConfigError
 from nanosysid.identify import identified_vehicle

@@ -12,7 +12,7 @@ from nanosysid.discover import CHANNELS, LIBRARY, VERDICTS, DiscoveryResult
 from nanosysid.discover.analysis import BANDS, REGIMES
 from nanosysid.metrics import QUANTITIES
 from nanosysid.report.tables import results_table_md
-from nanosysid.viz.benchmark import mae_horizon_figure
+from nanosysid.viz.figures import mae_horizon_figure
 from nanosysid.viz.discovery import channel_figure, finding_figure
 
 __all__ = ["write_report", "result_dict", "gap_closed", "verdicts_markdown"]

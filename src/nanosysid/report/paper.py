@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
-from nanosysid.benchmark import Scores
+from nanosysid.protocol import Scores
 from nanosysid.metrics import QUANTITIES
 
 __all__ = ["PAPER_COST", "PAPER_STATS", "PAPER_RESULTS", "PAPER_MODELS", "PAPER_IDENTIFIED", "Comparison", "compare_results",

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from nanosysid import benchmark, so3
+from nanosysid import protocol, so3
 from nanosysid.dataio import SAMPLE_PERIOD, atomic_file, read_flight_csv, write_json
 from nanosysid.errors import DataError
 from nanosysid.models.physics import PhysicsStep
@@ -82,8 +82,8 @@ def quality_report(
     test_proc = [f for n, f in processed.items() if f.trajectory in test_trajectories]
     test_direct = [read_flight_csv(f) for f in sorted(Path(direct_dir).rglob("*.csv"))]
     test_direct = [f for f in test_direct if f.trajectory in test_trajectories]
-    s_proc = benchmark.evaluate(predict, test_proc, horizon=horizon)
-    s_direct = benchmark.evaluate(predict, test_direct, horizon=horizon)
+    s_proc = protocol.evaluate(predict, test_proc, horizon=horizon)
+    s_direct = protocol.evaluate(predict, test_direct, horizon=horizon)
     compare = {}
     for k in ("p", "v", "R", "w"):
         for label, a, b in ((f"h{10}", s_proc.mae[k][9], s_direct.mae[k][9]),

@@ -9,7 +9,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from nanosysid.benchmark import Scores
+from nanosysid.protocol import Scores
 from nanosysid.errors import DataError
 from nanosysid.metrics import QUANTITIES, UNITS
 from nanosysid.report.paper import PAPER_COST

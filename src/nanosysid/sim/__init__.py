@@ -84,7 +84,7 @@ def simulate_flight(
 def oracle(effects: Mapping[str, float] | None = None, *, vehicle: Vehicle | None = None, substeps: int = 4,
            dt: float = 0.01, rotor_delay: float | None = None, seed: int = 0,
            extra_wrench: ExtraWrench | None = None) -> Oracle:
-    """A predictor for :func:`nanosysid.benchmark.evaluate` with the true dynamics of the world.
+    """A predictor for :func:`nanosysid.protocol.evaluate` with the true dynamics of the world.
 
     ``rotor_delay`` (s) is the delay of the rotor speeds in the data behind the true ones; by
     default the ``telemetry_delay`` effect's, as in the simulator's direct output. Flights from

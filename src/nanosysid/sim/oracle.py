@@ -1,7 +1,7 @@
 """The oracle: a predictor that integrates the simulator's true dynamics, hidden effects included.
 
 It is the physical limit of the benchmark on simulated data. It knows every effect of the world,
-the time-varying ones too: it is a *timed* predictor (:func:`nanosysid.benchmark.evaluate` gives
+the time-varying ones too: it is a *timed* predictor (:func:`nanosysid.protocol.evaluate` gives
 it each window's start time and the flight's name), and replays the flight's turbulence and rotor thrust fluctuations from
 the simulation's seed and the user-supplied wrench at the right times. What it still cannot
 know is the measurement noise on ``y0`` and on ``u``, the rotor speeds between samples (it
@@ -56,7 +56,7 @@ class Oracle:
         if self.world.timed:
             if flight is None:
                 raise PredictionError("the oracle replays each flight's turbulence and thrust fluctuations: call it "
-                                      "with flight=<its name> and t0 (benchmark.evaluate does)")
+                                      "with flight=<its name> and t0 (protocol.evaluate does)")
             trajectory, run = parse_flight_name(flight)
             disturbance = self.world.disturbance(flight_key(self.seed, trajectory, run), t_end)
         return Nature([self.world], self.vehicle, disturbances=[disturbance], extra=self.extra_wrench)
@@ -71,7 +71,7 @@ class Oracle:
         nature = self._nature(flight, 1.0 if t is None else float(t.max()) + (H + 2) * self.dt)
         if nature.timed and t is None:
             raise PredictionError("the oracle's world depends on time (random effects or an extra wrench): call it with "
-                                  "t0=<each window's start, s> (benchmark.evaluate does)")
+                                  "t0=<each window's start, s> (protocol.evaluate does)")
         # rotor speeds move linearly from one sample to the next; the last one is held
         om_next = torch.cat((om[:, 1:], om[:, -1:]), dim=1)
         om_dot = (om_next - om) / self.dt

@@ -81,7 +81,7 @@ def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Pa
     Args:
         flight: The measured flight.
         rollouts: Each model's predictions from every start, ``(T - H, H, 13)``
-            (:func:`nanosysid.benchmark.predictions`).
+            (:func:`nanosysid.protocol.predictions`).
         path: Output file; written to a temporary name, then renamed.
         stride: Draw a 3D rollout from every ``stride``-th start.
         verdicts: Discovery's verdicts (markdown), shown beside the signals.

@@ -32,7 +32,7 @@ def ahead(rollouts: np.ndarray, h: int, n_samples: int, starts: np.ndarray | Non
     """The ``h``-step-ahead prediction along a flight, ``(T, 13)``.
 
     ``rollouts (N, H, 13)`` are the predictions from the samples ``starts`` (every start
-    ``0..N-1`` by default; see :func:`nanosysid.benchmark.predictions`); row ``t`` of the
+    ``0..N-1`` by default; see :func:`nanosysid.protocol.predictions`); row ``t`` of the
     result is ``ŷ_{t|t-h}``, and NaN where no rollout predicts sample ``t`` from ``h`` steps before.
     """
     starts = np.arange(len(rollouts)) if starts is None else np.asarray(starts)

@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from nanosysid.benchmark import Scores  # noqa: E402
+from nanosysid.protocol import Scores  # noqa: E402
 from nanosysid.dataio import Flight, atomic_file  # noqa: E402
 from nanosysid.metrics import QUANTITIES, UNITS  # noqa: E402
 from nanosysid.viz.signals import SIGNALS, model_color, readable  # noqa: E402

@@ -1,4 +1,4 @@
-"""The benchmark: load flights, cut windows, score any predictor with the paper's protocol.
+"""The benchmark's protocol: load flights, cut windows, score any predictor as the paper does.
 
 A predictor is ``predict(y0 (B, 13), u (B, H, 4)) -> (B, H, 13)`` (numpy or torch). For
 every admissible start ``t in {0, ..., T-H-1}`` of a flight it receives ``y_t`` and
@@ -9,9 +9,9 @@ s from the flight's first sample, and ``flight=`` the flight's name.
 
 Example::
 
-    from nanosysid import benchmark, predictors
-    bench = benchmark.load("path/to/data")        # train/ and test/ flight CSVs
-    scores = benchmark.evaluate(predictors.predictor("physics"), bench.test, horizon=50)
+    from nanosysid import predictors, protocol
+    bench = protocol.load("path/to/data")        # train/ and test/ flight CSVs
+    scores = protocol.evaluate(predictors.predictor("physics"), bench.test, horizon=50)
     scores.mae["p"][9], scores.simerr["v"]
 """
 

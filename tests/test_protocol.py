@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from nanosysid import benchmark, predictors, so3, synthetic
+from nanosysid import predictors, protocol, so3, synthetic
 from nanosysid.dataio import Flight
 from nanosysid.errors import ConfigError, PredictionError
 
@@ -22,7 +22,7 @@ def test_window_count_and_alignment(T, H):
     f = still_flight("melon_x_run1", T)
     f.y[:, 0] = np.arange(T)  # x = sample index
     f.u[:, 0] = np.arange(T)
-    y0, u, y = benchmark.windows(f, H)
+    y0, u, y = protocol.windows(f, H)
     assert len(y0) == T - H
     assert u.shape == (T - H, H, 4) and y.shape == (T - H, H, 13)
     t = 5 if T - H > 5 else 0
@@ -43,7 +43,7 @@ def test_rotated_prediction_gives_exactly_that_angle():
     y_pred = y_true.copy()
     y_pred[..., 6:10] = so3.quat_mul(q, so3.quat_exp(torch.from_numpy(axis * angle))).numpy()
     y_pred[..., 6:10] *= -1  # the other sign of the same rotation
-    s = benchmark.score(y_true, y_pred)
+    s = protocol.score(y_true, y_pred)
     assert np.allclose(s.mae["R"], angle, atol=1e-12)
     assert np.all(s.mae["p"] == 0) and np.all(s.mae["w"] == 0)
 
@@ -58,7 +58,7 @@ def test_constructed_errors_give_expected_mae():
     y_pred[..., 1] = 4 * np.arange(N)[:, None]
     # velocity error grows with the horizon: 0.1 h
     y_pred[..., 5] = 0.1 * np.arange(1, H + 1)
-    s = benchmark.score(y_true, y_pred)
+    s = protocol.score(y_true, y_pred)
     assert np.allclose(s.mae["p"], 7.5)
     assert np.allclose(s.mae["v"], [0.1, 0.2, 0.3])
     assert np.isclose(s.simerr["v"], 0.6) and np.isclose(s.simerr["p"], 22.5)
@@ -72,7 +72,7 @@ def test_evaluate_averages_flights_and_keeps_each():
         out[..., 2] += 1.0 if len(y0) == 30 else 3.0  # flight 1 has 30 windows, flight 2 has 80
         return out
 
-    s = benchmark.evaluate(offset_predict, flights, horizon=50)
+    s = protocol.evaluate(offset_predict, flights, horizon=50)
     assert s.n_windows == 30 + 80
     assert np.allclose(s.per_flight["melon_a_run1"].mae["p"], 1.0)
     assert np.allclose(s.per_flight["melon_a_run2"].mae["p"], 3.0)
@@ -83,24 +83,24 @@ def test_evaluate_averages_flights_and_keeps_each():
 def test_evaluate_batches_give_the_same_answer_and_torch_output_is_accepted():
     flights = synthetic.synthetic_flights(["melon_s_run1"], 300, seed=3)
     phys = predictors.predictor("physics")
-    a = benchmark.evaluate(phys, flights, horizon=20, batch_size=7)
-    b = benchmark.evaluate(phys, flights, horizon=20, batch_size=10_000)
+    a = protocol.evaluate(phys, flights, horizon=20, batch_size=7)
+    b = protocol.evaluate(phys, flights, horizon=20, batch_size=10_000)
     for k in a.mae:
         assert np.allclose(a.mae[k], b.mae[k], rtol=1e-12)
-    c = benchmark.evaluate(lambda y0, u: torch.from_numpy(phys(y0, u)), flights, horizon=20)
+    c = protocol.evaluate(lambda y0, u: torch.from_numpy(phys(y0, u)), flights, horizon=20)
     assert np.allclose(c.mae["v"], a.mae["v"])
 
 
 def test_predictor_with_wrong_shape_is_rejected():
     with pytest.raises(PredictionError, match=r"predictor returned shape \(55, 13\) on flight melon_a_run1"):
-        benchmark.evaluate(lambda y0, u: y0, [still_flight("melon_a_run1", 60)], horizon=5)
+        protocol.evaluate(lambda y0, u: y0, [still_flight("melon_a_run1", 60)], horizon=5)
 
 
 def test_builtin_models_on_flights_of_the_nominal_dynamics():
     flights = synthetic.synthetic_flights(["melon_s_run1", "melon_s_run2"], 400, substeps=1, seed=1)
-    naive = benchmark.evaluate(predictors.predictor("naive"), flights)
-    phys = benchmark.evaluate(predictors.predictor("physics"), flights)
-    full = benchmark.evaluate(predictors.predictor("physics_full"), flights)
+    naive = protocol.evaluate(predictors.predictor("naive"), flights)
+    phys = protocol.evaluate(predictors.predictor("physics"), flights)
+    full = protocol.evaluate(predictors.predictor("physics_full"), flights)
     # same integrator and parameters as the data: exact up to rounding
     assert all(v < 1e-9 for v in full.simerr.values())
     # dw/dt = 0 is exact at h = 1 only in the kinematic part, and far better than naive
@@ -116,8 +116,8 @@ def test_model_by_unknown_name():
 
 def test_scores_round_trip_through_dict():
     flights = synthetic.synthetic_flights(["melon_s_run1"], 120, seed=2)
-    s = benchmark.evaluate(predictors.predictor("physics"), flights, horizon=10)
-    back = benchmark.Scores.from_dict(s.to_dict())
+    s = protocol.evaluate(predictors.predictor("physics"), flights, horizon=10)
+    back = protocol.Scores.from_dict(s.to_dict())
     assert back.simerr == s.simerr and list(back.per_flight) == ["melon_s_run1"]
 
 
@@ -140,12 +140,12 @@ def naive_with(change):
 def test_unscorable_predictions_are_refused(change, problem):
     flight = still_flight("melon_a_run1", 60)
     with pytest.raises(PredictionError, match=re.escape(problem)):
-        benchmark.evaluate(naive_with(change), [flight], horizon=5)
+        protocol.evaluate(naive_with(change), [flight], horizon=5)
     y = np.repeat(flight.y[None, :5], 3, axis=0)
     pred = y.copy()
     change(pred)
     with pytest.raises(PredictionError):
-        benchmark.score(y, pred)
+        protocol.score(y, pred)
 
 
 @pytest.mark.parametrize("key, value", [("horizon", 0), ("horizon", -5), ("horizon", 2.5), ("horizon", True),
@@ -153,7 +153,7 @@ def test_unscorable_predictions_are_refused(change, problem):
 def test_protocol_settings_must_be_whole_numbers_of_at_least_one(key, value):
     flight = still_flight("melon_a_run1", 60)
     with pytest.raises(ConfigError, match=f"{key} must be a whole number >= 1, got {re.escape(repr(value))}"):
-        benchmark.evaluate(predictors.predictor("naive"), [flight], **{key: value})
+        protocol.evaluate(predictors.predictor("naive"), [flight], **{key: value})
 
 
 def test_a_predictor_cannot_change_the_flight_it_is_scored_on():
@@ -167,7 +167,7 @@ def test_a_predictor_cannot_change_the_flight_it_is_scored_on():
             pass
         return np.repeat(np.asarray(before[:len(y0)])[:, None, :], u.shape[1], axis=1)
 
-    benchmark.evaluate(vandal, [flight], horizon=5)
+    protocol.evaluate(vandal, [flight], horizon=5)
     assert np.array_equal(flight.y, before)
 
 
@@ -185,7 +185,7 @@ def test_template_layout_row_t_holds_the_prediction_started_at_t():
         out[:, :, 0] += np.arange(1, u.shape[1] + 1)
         return out
 
-    frame = benchmark.template_frame(predict, flight, horizon=H)
+    frame = protocol.template_frame(predict, flight, horizon=H)
     assert list(frame.columns[:14]) == ["t", "x", "y", "z", "vx", "vy", "vz", "qx", "qy", "qz", "qw", "wx", "wy", "wz"]
     assert len(frame.columns) == 14 + 13 * H and "wz_pred_h5" in frame.columns
     assert frame["x_pred_h3"][10] == 13.0 and frame["x_pred_h1"][T - H - 1] == T - H
