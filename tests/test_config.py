@@ -232,15 +232,17 @@ def test_the_campaigns_old_module_name_still_works_for_a_release_with_a_deprecat
     assert worlds.World is campaign.HiddenWorld and worlds.check is campaign.check
 
 
-@pytest.mark.parametrize("module", ["sync", "filtering"])
-def test_the_table_steps_old_module_names_still_work_for_a_release(module):
+@pytest.mark.parametrize("old_name,new_name", [
+    ("nanosysid.bags.sync", "nanosysid.preprocess.sync"), ("nanosysid.bags.filtering", "nanosysid.preprocess.filtering"),
+    ("nanosysid.benchmark", "nanosysid.protocol")])
+def test_renamed_modules_old_names_still_work_for_a_release(old_name, new_name):
     import importlib
     import sys
 
-    new = importlib.import_module(f"nanosysid.preprocess.{module}")
-    sys.modules.pop(f"nanosysid.bags.{module}", None)
-    with pytest.warns(DeprecationWarning, match=rf"nanosysid\.bags\.{module} is now nanosysid\.preprocess\.{module}"):
-        old = importlib.import_module(f"nanosysid.bags.{module}")
+    new = importlib.import_module(new_name)
+    sys.modules.pop(old_name, None)
+    with pytest.warns(DeprecationWarning, match=rf"{re.escape(old_name)} is now {re.escape(new_name)}"):
+        old = importlib.import_module(old_name)
     assert all(getattr(old, name) is getattr(new, name) for name in new.__all__)
 
 
