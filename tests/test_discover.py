@@ -302,3 +302,16 @@ def test_a_disturbance_of_time_alone_is_said_to_be_no_function_of_the_state():
 def test_clean_world_has_nothing_that_is_not_a_function_of_the_state():
     assert not [f for f in discovered("clean").findings if f.verdict == discover.STATELESS]
 
+
+
+def test_a_delay_beyond_the_search_has_an_interval_open_above():
+    # the world's 33 ms, searched up to 25 ms only: the search stops at its largest delay, and the
+    # truth, somewhere beyond it, stays inside the interval
+    discovered("delay")
+    flights = _flights["delay"]
+    r = discover.run([f for f in flights if f.trajectory != "melon"], [f for f in flights if f.trajectory == "melon"],
+                     delays=(0.005, 0.01, 0.015, 0.02, 0.025), analysis=False)
+    f = next(f for f in r.findings if f.entry == "input_delay")
+    assert f.params["delay [s]"] == 0.025
+    lo, hi = f.evidence["ci"]["delay [s]"]
+    assert lo <= 0.025 and hi >= TRUTH["input_delay"][0], (lo, hi)

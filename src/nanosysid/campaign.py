@@ -229,7 +229,8 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
     try:
         thrust, yaw = identify.identify(train, setup.vehicle)
         nominal = dataclasses.replace(setup.vehicle, k_f=thrust.coef, k_m=yaw.coef)
-        r = discover.run(train, test, vehicle=nominal, oracle=oracle, sindy=True, analysis=False, horizon=horizon)
+        r = discover.run(train, test, vehicle=nominal, oracle=oracle, sindy=True, analysis=False, horizon=horizon,
+                         inertia_z_range=setup.inertia_z_range)
     except PredictionError as e:  # the augmented model diverges on the test flight: a failure of discovery
         return {"world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
                 "user_strength": world.user_strength, "error": str(e), "identify": ident}

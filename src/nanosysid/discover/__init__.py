@@ -114,7 +114,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         alpha: float = 0.01, floor: float = 0.25, share: float = 0.5, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005),
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
         oracle: Any = None, limit: Any = None, analysis: bool = True, sindy: bool = False,
-        batch_size: int = 8192) -> DiscoveryResult:
+        inertia_z_range: tuple[float, float] | None = None, batch_size: int = 8192) -> DiscoveryResult:
     """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
 
     Args:
@@ -135,6 +135,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             that are not functions of the state (simulated data), scored for reference.
         analysis: Also compute where the models disagree (per channel, regime, band, rollout).
         sindy: Also fit and score the plain SINDy discrepancy model (generic terms only, no names).
+        inertia_z_range: The yaw inertia's plausible range (kg m²): the yaw inertia correction's
+            interval reaches all of it (the flights tell yaw ratios to J_z, not J_z).
     """
     if len(train_flights) < 1:
         raise DataError("discover needs at least 1 training flight")
@@ -151,7 +153,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
 
     selection = prune(search, select(search, delays, alpha=alpha, floor=floor, total=total), share)
     fit = coefficients(search, selection, v)
-    findings = named(search, selection, fit, v, delays)
+    findings = named(search, selection, fit, v, delays, inertia_z_range)
     rest = unnamed(search, selection, alpha=alpha, floor=floor, total=total)
     findings += rest.findings
     # a residual above the noise floor that no function of the state captures (a disturbance of

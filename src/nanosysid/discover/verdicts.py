@@ -5,6 +5,7 @@ what no function of the state explains."""
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -17,6 +18,8 @@ from nanosysid.discover.select import Selection
 from nanosysid.discover.stats import half_width, jackknife, pvalue
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, split_coefficients
 from nanosysid.vehicle import Vehicle
+
+INERTIA = "inertia"  # the library entry that corrects the body's inertia
 
 __all__ = ["Coefficients", "coefficients", "named", "Remainder", "unnamed", "stateless"]
 
@@ -43,9 +46,12 @@ class Coefficients:
 
 def coefficients(search: Search, selection: Selection, vehicle: Vehicle) -> Coefficients:
     """The final fit of the chosen entries, the fits without each fold, and the fits with each
-    plausible rival (the eligible candidates the selection passed over): a coefficient that
-    moves when a rival joins is uncertain by that much beyond the folds' scatter (collinear or
-    misspecified columns bias it; the folds cannot show a bias)."""
+    plausible rival: the eligible candidates the selection passed over, and the physically
+    plausible candidates of its last round, which it found too small or not significant (a
+    collinear entry adds little once the chosen ones have taken its share, which is why its
+    absence is no evidence). A coefficient that moves when a rival joins is uncertain by that
+    much beyond the folds' scatter (collinear or misspecified columns bias it; the folds cannot
+    show a bias)."""
     chosen, delay = selection.chosen, selection.delay
     g = search.grams(delay)
     cols = search.cols(chosen)
@@ -54,7 +60,9 @@ def coefficients(search: Search, selection: Selection, vehicle: Vehicle) -> Coef
     theta = g.solve(cols)
     _, thetas = g.heldout(cols)
     names = [NOMINAL.name, *chosen]
-    rivals = sorted({n for pk in selection.picks for n in pk.competitors + [pk.name]} - set(chosen) - {DELAY.name})
+    passed_over = {n for pk in selection.picks for n in pk.competitors + [pk.name]}
+    last = {c.name for c in selection.rounds[-1] if c.plausible} if selection.rounds else set()
+    rivals = sorted((passed_over | last) - set(chosen) - {DELAY.name})
     rival_coef = []
     for n in rivals:
         alt_cols = search.cols(chosen + [n])
@@ -65,10 +73,16 @@ def coefficients(search: Search, selection: Selection, vehicle: Vehicle) -> Coef
 
 
 def named(search: Search, selection: Selection, fit: Coefficients, vehicle: Vehicle,
-          delays: Sequence[float]) -> list[Finding]:
+          delays: Sequence[float], inertia_z_range: tuple[float, float] | None = None) -> list[Finding]:
     """One finding per pick: named, or ambiguous where an alternative is not named later; with
     each coefficient's 95 % interval (the rivals' range widened by the folds' jackknife interval)
-    and the pick's stability."""
+    and the pick's stability.
+
+    ``inertia_z_range`` (kg m², the yaw inertia's plausible range) widens the yaw inertia
+    correction's interval to reach every value in it: the yaw torque is read through the yaw
+    inertia, with which k_M was identified too, so the flights tell the yaw coefficients' ratios
+    to J_z rather than J_z (:func:`nanosysid.identify.with_inertia_range` does the same for k_M).
+    A delay chosen at the search's largest has no upper bound: the truth may lie beyond it."""
     chosen, delay = selection.chosen, selection.delay
     findings: list[Finding] = []
     named_later = set(chosen) | ({DELAY.name} if delay else set())
@@ -97,10 +111,17 @@ def named(search: Search, selection: Selection, fit: Coefficients, vehicle: Vehi
             # step of the point chosen, which the folds' spread alone (zero when every fold picks
             # the same point) does not say
             below, above = _grid_gaps((0.0,) + tuple(delays), delay)
+            if delay >= max(delays):
+                above = math.inf
             ev["ci"] = {k: (params[k] - half[k] - below, params[k] + half[k] + above) for k in params}
         else:
             ev["rival_range"] = {k: (float(spread[:, i].min()), float(spread[:, i].max())) for i, k in enumerate(params)}
             ev["ci"] = {k: (ev["rival_range"][k][0] - half[k], ev["rival_range"][k][1] + half[k]) for k in params}
+            if name == INERTIA and inertia_z_range is not None:
+                k, jz = c.params[2], vehicle.inertia[2]
+                lo, hi = ev["ci"][k]
+                ev["ci"][k] = (min(lo, inertia_z_range[0] - jz), max(hi, inertia_z_range[1] - jz))
+                ev["inertia_z_range"] = [float(x) for x in inertia_z_range]
         ev["stability"] = _stability(search, chosen, name, pk.competitors, delay)
         if pk.generic_share is not None:
             ev["generic_share"] = pk.generic_share
