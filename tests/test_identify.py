@@ -143,13 +143,15 @@ def test_k_m_by_instruments_holds_in_closed_loop_where_least_squares_does_not():
 
 def test_the_campaign_judges_a_worlds_motor_lag_k_f_and_k_m():
     # one world of the campaign, its telemetry 60 ms late: the lag from its flights' sharp
-    # thrust transients, then k_F and k_M with the rotor speeds moved back by it
+    # thrust transients, then k_F and k_M with the rotor speeds moved back by it (the yaw
+    # calibration flight cut to 30 s, half the campaign's: the longest flight sets the batch's time)
     from nanosysid import campaign
 
     world = campaign.HiddenWorld(0, {"telemetry_delay": 2.0, "rotor_drag": 1.0}, seed=5)
-    flights, _ = campaign.simulate([world])[0]
+    setup = campaign.Setup(sim=campaign.short_flights_config(calibration=30.0))
+    flights, _ = campaign.simulate([world], setup)[0]
     assert sorted(f.trajectory for f in flights) == ["chirp", "melon", "random", "square", "yawsweep"]
-    ident = campaign.identification(world, flights)
+    ident = campaign.identification(world, flights, setup=setup)
     assert ident["lag_true"] == pytest.approx(0.060) and abs(ident["lag_error"]) < 0.003
     assert abs(ident["k_f_error"]) < 0.01 and ident["k_m_identifiable"] and abs(ident["k_m_error"]) < 0.15
     summary = campaign.summarize_identification([ident])

@@ -24,6 +24,39 @@ SHORT = SimConfig.from_mapping({
 })
 
 
+def constant_push(t, x, omega, omega_dot):
+    """A 10 mN force along body x."""
+    force = torch.zeros_like(x[..., :3])
+    force[..., 0] = 0.01
+    return force, torch.zeros_like(force)
+
+
+def wavering_push(t, x, omega, omega_dot):
+    """A vertical force and a roll torque, each a sinusoid of time."""
+    force = torch.zeros_like(x[..., :3])
+    force[..., 2] = 0.02 * torch.sin(2.0 * t)
+    torque = torch.zeros_like(force)
+    torque[..., 0] = 1e-4 * torch.cos(3.0 * t)
+    return force, torque
+
+
+# The short noise-free Melons the tests below compare, each in its own world, simulated as one
+# batch: a flight is the same alone or in any batch (test_a_flight_is_the_same_alone_or_in_a_batch...).
+MELONS = {
+    "none": sim.FlightSpec("melon", effects={}),
+    **{e: sim.FlightSpec("melon", effects={e: 1.0}) for e in sim.EFFECTS},
+    "drag_com_asymmetry": sim.FlightSpec("melon", effects={"rotor_drag": 1.0, "com_offset": 1.0,
+                                                           "motor_asymmetry": 1.0}),
+    "pushed": sim.FlightSpec("melon", effects={}, extra_wrench=constant_push),
+    "turbulence_wavering": sim.FlightSpec("melon", effects={"turbulence": 1.0}, seed=4, extra_wrench=wavering_push),
+}
+
+
+@pytest.fixture(scope="module")
+def melons():
+    return dict(zip(MELONS, simulate(list(MELONS.values()), cfg=SHORT, noise=False, progress=False)))
+
+
 def sample(ref, dt=0.01):
     t = np.arange(0, ref.duration + 1e-9, dt)
     return (t, *ref.pva(t))
@@ -220,11 +253,10 @@ def test_random_effects_are_band_limited_with_their_stated_size_and_replay_from_
     assert half[:, :6] == pytest.approx(0.5 * short[:, :6]) and not half[:, 6:].any()
 
 
-def test_inertia_offset_is_the_true_body():
+def test_inertia_offset_is_the_true_body(melons):
     """Noise-free flights: physics_full with the nominal inertia misses the effect; with the
     inertia 15 % (roll, pitch) and 25 % (yaw) larger it predicts the flight as with no effect."""
-    f = sim.simulate_flight("melon", 1, effects={"inertia_offset": 1.0}, noise=False, cfg=SHORT)
-    none = sim.simulate_flight("melon", 1, effects={}, noise=False, cfg=SHORT)
+    f, none = melons["inertia_offset"], melons["none"]
     J = tuple(j * k for j, k in zip(V.inertia, (1.15, 1.15, 1.25)))
     true_body = predictors.predictor("physics_full", vehicle=Vehicle(inertia=J))
     nominal = predictors.predictor("physics_full")
@@ -233,8 +265,8 @@ def test_inertia_offset_is_the_true_body():
     assert protocol.evaluate(nominal, [f]).simerr["w"] > 3 * err
 
 
-def test_telemetry_delay_shifts_recorded_rotor_speeds():
-    f = sim.simulate_flight("melon", 1, effects={"telemetry_delay": 1.0}, noise=False, cfg=SHORT)
+def test_telemetry_delay_shifts_recorded_rotor_speeds(melons):
+    f = melons["telemetry_delay"]
     true = np.column_stack([f.extra[f"true_m{i}_rads"] for i in range(1, 5)])
     assert np.allclose(f.u[3:], true[:-3])  # 30 ms = 3 samples
     assert not np.allclose(f.u, true)
@@ -295,18 +327,15 @@ def test_a_new_world_effect_is_one_record_and_one_config_line(toy_lift, tmp_path
     assert thrust[0] / thrust[1] == pytest.approx(0.9, rel=5e-3)
 
 
-def test_every_effect_is_visible_to_the_nominal_model():
+def test_every_effect_is_visible_to_the_nominal_model(melons):
     """Noise-free: physics_full is near perfect with no effect, and each effect raises its error."""
     full, naive = predictors.predictor("physics_full"), predictors.predictor("naive")
-    worlds = [{}] + [{e: 1.0} for e in sim.EFFECTS]
-    errs = []
-    for w in worlds:
-        f = sim.simulate_flight("melon", 1, effects=w, noise=False, cfg=SHORT)
-        errs.append(protocol.evaluate(full, [f], horizon=50).mae["p"][49])
-        if not w:
-            assert errs[0] < 0.01 * protocol.evaluate(naive, [f], horizon=50).mae["p"][49]
-    for e, err in zip(sim.EFFECTS, errs[1:]):
-        assert err > 1.3 * errs[0], f"{e}: {err:.4g} vs {errs[0]:.4g} without effects"
+    none = protocol.evaluate(full, [melons["none"]], horizon=50).mae["p"][49]
+    assert none < 0.01 * protocol.evaluate(naive, [melons["none"]], horizon=50).mae["p"][49]
+    assert set(sim.EFFECTS) <= set(melons)
+    for e in sim.EFFECTS:
+        err = protocol.evaluate(full, [melons[e]], horizon=50).mae["p"][49]
+        assert err > 1.3 * none, f"{e}: {err:.4g} vs {none:.4g} without effects"
 
 
 # ---- flights, determinism, oracle -----------------------------------------------------------
@@ -371,45 +400,35 @@ def test_a_flight_is_the_same_alone_or_in_a_batch_of_other_worlds():
     assert not np.allclose(batch[3].y, batch[4].y)
 
 
-def test_a_constant_extra_force_moves_the_flight_as_newton_says():
+def test_a_constant_extra_force_moves_the_flight_as_newton_says(melons):
     """No hidden effect, no noise. A constant 10 mN push along body x (0.222 m/s^2 for 45 g)
     adds to the nominal model's position error after h steps the displacement of that
     acceleration, R F / m (h dt)^2 / 2, with R the attitude at the window's start: 1.11 mm at
     h = 10. What the nominal model misses anyway (the rotor speed between its 100 Hz samples)
     is taken out with the same flight flown without the push; the Melon's first second, a
     thrust transient, is left out."""
-    force = torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64)
-
-    def push(t, x, omega, omega_dot):
-        return force.expand(*x.shape[:-1], 3), torch.zeros_like(x[..., :3])
-
+    force = np.array([0.01, 0.0, 0.0])
     err = {}
-    for name, wrench in (("pushed", push), ("free", None)):
-        f = sim.simulate_flight("melon", 1, effects={}, noise=False, cfg=SHORT, extra_wrench=wrench)
+    for name in ("pushed", "none"):
+        f = melons[name]
         y0, u, y = (a[f.t[:len(f) - 10] >= 1.0] for a in protocol.windows(f, 10))
         err[name] = y[:, -1, :3] - predictors.predictor("physics_full")(y0, u)[:, -1, :3]
-        if wrench is not None:
+        if name == "pushed":
             R = so3.quat_to_rotmat(torch.from_numpy(np.ascontiguousarray(y0[:, 6:10]))).numpy()
-    expected = (R @ force.numpy()) / V.mass * 0.1**2 / 2
+    expected = (R @ force) / V.mass * 0.1**2 / 2
     assert np.abs(expected).max() == pytest.approx(1.11e-3, rel=0.01)
     # the attitude turns a little within 0.1 s, and the pushed flight tilts against the push:
     # within 10 % of the push's displacement
-    assert np.abs(err["pushed"] - err["free"] - expected).max() < 0.1 * 1.11e-3
+    assert np.abs(err["pushed"] - err["none"] - expected).max() < 0.1 * 1.11e-3
 
 
-def test_the_oracle_knows_turbulence_and_a_users_wrench():
+def test_the_oracle_knows_turbulence_and_a_users_wrench(melons):
     """Noise-free flights with a time-varying push of the user's and the turbulence: the oracle,
     given the same function and the simulation's seed, predicts them almost exactly; the
     nominal model does not."""
-    def push(t, x, omega, omega_dot):
-        force = torch.zeros_like(x[..., :3])
-        force[..., 2] = 0.02 * torch.sin(2.0 * t)
-        torque = torch.zeros_like(force)
-        torque[..., 0] = 1e-4 * torch.cos(3.0 * t)
-        return force, torque
-
+    push = wavering_push
     world = {"turbulence": 1.0}
-    f = sim.simulate_flight("melon", 1, effects=world, seed=4, noise=False, cfg=SHORT, extra_wrench=push)
+    f = melons["turbulence_wavering"]
     oracle = protocol.evaluate(sim.oracle(world, seed=4, extra_wrench=push), [f])
     full = protocol.evaluate(predictors.predictor("physics_full"), [f])
     for k in "pvRw":
@@ -421,9 +440,9 @@ def test_the_oracle_knows_turbulence_and_a_users_wrench():
         sim.oracle(world, seed=4)(f.y[:2], f.u[None, :5].repeat(2, 0))
 
 
-def test_oracle_is_the_physical_limit():
+def test_oracle_is_the_physical_limit(melons):
     world = {"rotor_drag": 1.0, "com_offset": 1.0, "motor_asymmetry": 1.0}
-    f = sim.simulate_flight("melon", 1, effects=world, noise=False, cfg=SHORT)
+    f = melons["drag_com_asymmetry"]
     oracle = protocol.evaluate(sim.oracle(world), [f])
     phys = protocol.evaluate(predictors.predictor("physics"), [f])
     full = protocol.evaluate(predictors.predictor("physics_full"), [f])
