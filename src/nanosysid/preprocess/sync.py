@@ -148,8 +148,9 @@ class LagEstimate:
     """A motor lag (s) with its 95 % interval from independent repeats.
 
     ``events`` counts the transients it rests on (0: the whole-flight fallback), ``units`` the
-    repeats its interval comes from (flights for a session, transients for one flight), and
-    ``background`` is the rate-of-change scale its transients stood out from.
+    repeats its interval comes from (flights for a session, transients for one flight),
+    ``background`` is the rate-of-change scale its transients stood out from and ``threshold``
+    the rate of change (same units) a transient exceeded.
     """
 
     value: float
@@ -158,6 +159,7 @@ class LagEstimate:
     events: int
     units: int
     background: float
+    threshold: float
 
 
 def motor_lag_evidence(name: str, imu: pd.DataFrame, motors: pd.DataFrame, cfg: SyncConfig) -> LagEvidence:
@@ -204,8 +206,16 @@ def _transient_curves(e: LagEvidence, threshold: float, window: float, m: int) -
     return np.array(curves).reshape(-1, 2 * m + 1)
 
 
+# The steps (times ``lag_threshold``) down which a rig's threshold is relaxed until its transients
+# give an interval. A rig with strong thrust disturbances answers them with fast rotor-speed
+# changes, which raise the background its reference steps must stand out from: with the
+# threshold fixed, such a session has no transient and falls back on the biased whole-flight
+# correlation (tens of milliseconds early, with no interval).
+RELAX = (1.0, 0.8, 0.6, 0.5, 0.4)
+
+
 def motor_lag_estimate(evidence: Sequence[LagEvidence], cfg: SyncConfig, *,
-                       background: float | None = None) -> LagEstimate:
+                       threshold: float | None = None) -> LagEstimate:
     """The motor lag of one rig (a recording session, or one flight), read off its sharp
     thrust transients.
 
@@ -213,24 +223,38 @@ def motor_lag_estimate(evidence: Sequence[LagEvidence], cfg: SyncConfig, *,
     milliseconds later, so over a whole smooth flight the correlation of ``a_z`` with
     ``sum Omega^2`` peaks early (towards zero lag). A sharp transient is set by the reference,
     not by a disturbance: the proxy changes there ``cfg.lag_threshold`` times faster than the
-    background of the loop's answers (by default the median flight's robust scale, so a flight
-    made only of smooth motion has no transient), and there the peak sits at the telemetry's
-    lag. The lag is the peak of the cross-covariances summed over every transient of every
-    flight; its 95 % interval a delete-one jackknife with Student's t over the independent
-    repeats: the flights when several have transients, else the transients of the one. With no
-    transient anywhere, the peak of the whole-flight correlations (biased in closed loop).
+    background of the loop's answers (the median flight's robust scale, so a flight made only of
+    smooth motion has no transient), and there the peak sits at the telemetry's lag. Where the
+    transients do not give two independent repeats, the threshold is relaxed down the steps of
+    :data:`RELAX` until they do (else the highest threshold any transient passed is kept);
+    ``threshold`` (a rate of change, as :attr:`LagEstimate.threshold`) fixes it instead, as for a
+    flight's own estimate beside its session's. The lag is the peak of the cross-covariances
+    summed over every transient of every flight; its 95 % interval a delete-one jackknife with
+    Student's t over the independent repeats: the flights when several have transients, else
+    the transients of the one. With no transient anywhere, the peak of the whole-flight
+    correlations (biased in closed loop).
     """
     step = evidence[0].step
     m = int(round(cfg.max_lag / step))
-    scale = float(np.median([e.background for e in evidence])) if background is None else background
-    curves = [_transient_curves(e, cfg.lag_threshold * scale, cfg.lag_window, m) for e in evidence]
-    counts = [len(c) for c in curves]
-    if not sum(counts):
+    scale = float(np.median([e.background for e in evidence]))
+    steps = [threshold] if threshold is not None else [f * cfg.lag_threshold * scale for f in RELAX]
+    found = None
+    for limit in steps:
+        curves = [_transient_curves(e, limit, cfg.lag_window, m) for e in evidence]
+        counts = [len(c) for c in curves]
+        if not sum(counts):
+            continue
+        units = ([c.sum(0) for c in curves if len(c)] if sum(n > 0 for n in counts) > 1
+                 else list(np.concatenate(curves)))
+        found = found or (limit, counts, units)
+        if len(units) > 1:
+            found = (limit, counts, units)
+            break
+    if found is None:
         whole = [_xcov(e.az, e.proxy, m) for e in evidence]
         value = _peak(np.sum([c / max(np.abs(c).max(), 1e-300) for c in whole], axis=0)) * step
-        return LagEstimate(value, (None, None), "whole-flight correlation", 0, 0, scale)
-    units = ([c.sum(0) for c in curves if len(c)] if sum(n > 0 for n in counts) > 1
-             else list(np.concatenate(curves)))
+        return LagEstimate(value, (None, None), "whole-flight correlation", 0, 0, scale, steps[-1])
+    limit, counts, units = found
     total = np.sum(units, axis=0)
     value = _peak(total) * step
     n = len(units)
@@ -240,7 +264,10 @@ def motor_lag_estimate(evidence: Sequence[LagEvidence], cfg: SyncConfig, *,
         se = float(np.sqrt((n - 1) / n * ((loo - loo.mean()) ** 2).sum()))
         half = float(stats.t.ppf(0.975, n - 1)) * se
         interval = (value - half, value + half)
-    return LagEstimate(value, interval, "sharp thrust transients", int(sum(counts)), n, scale)
+    method = "sharp thrust transients"
+    if threshold is None and limit != steps[0]:
+        method += f" (threshold relaxed to {limit / scale:.3g} times the background)"
+    return LagEstimate(value, interval, method, int(sum(counts)), n, scale, limit)
 
 
 def _grid_nearest(t_src: np.ndarray, t: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
@@ -305,7 +332,7 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
 
     # 3. motors against the accelerometer: the session's lag when given, else the flight's own
     own = motor_lag_estimate([motor_lag_evidence(name, imu, motors, cfg)], cfg,
-                             background=None if motor_lag is None else motor_lag.background)
+                             threshold=None if motor_lag is None else motor_lag.threshold)
     applied = own if motor_lag is None else motor_lag
     t_imu = imu["t_src"].to_numpy()
     m2 = motors[["m1", "m2", "m3", "m4"]].to_numpy()
