@@ -43,7 +43,7 @@ class DvcRepo:
 
 
 # the campaign stage at its smallest: one world
-TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=6.0"]
+TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=10.0"]
 SMALL = [a for o in TINY_SIM + TINY_CAMPAIGN for a in ("-S", o)]
 
 

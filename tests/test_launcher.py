@@ -71,6 +71,26 @@ def test_a_stage_command_line_chooses_the_launcher_group(tmp_path, monkeypatch):
         config.load_params(["launcher=cluster"], path=params)
 
 
+@pytest.mark.parametrize("duration", [6.0, 15.0])
+def test_a_short_campaign_flies_a_shorter_square_as_hard_as_the_full_one(duration):
+    # the square sets a campaign batch's length: cut to the campaign's duration, its moves keep
+    # the full square's peak acceleration (the 1 m edges in 1 s moves: about 7.5 m/s^2)
+    import numpy as np
+
+    from nanosysid.campaign import short_flights_config
+    from nanosysid.sim.trajectories import make_reference
+
+    def peak(options):
+        ref = make_reference("square", **options)
+        _, _, a = ref.pva(np.arange(0.0, ref.duration, 1e-3))
+        return ref.duration, np.abs(a).max()
+
+    full = short_flights_config(20.0).trajectories["square"]
+    assert peak(full)[0] == pytest.approx(19.0) and 7.0 < peak(full)[1] < 8.0
+    length, acc = peak(short_flights_config(duration).trajectories["square"])
+    assert duration - 0.01 <= length <= duration + 1e-9 and acc == pytest.approx(peak(full)[1], rel=1e-3)
+
+
 @pytest.mark.slow
 def test_campaign_gives_the_same_bytes_with_one_or_two_workers(tmp_path, monkeypatch):
     from stages import campaign
@@ -80,7 +100,7 @@ def test_campaign_gives_the_same_bytes_with_one_or_two_workers(tmp_path, monkeyp
     params = tmp_path / "params.yaml"
     config.compose([], out=params)
     for workers in (1, 2):
-        argv = ["--params", str(params), "campaign.worlds=2", "campaign.chunk=1", "campaign.duration=6.0",
+        argv = ["--params", str(params), "campaign.worlds=2", "campaign.chunk=1", "campaign.duration=10.0",
                 "sim.flight.trajectories.yawsweep.duration=6.0", "launcher=local", f"launcher.workers={workers}",
                 f"campaign.out_dir={tmp_path / str(workers)}"]
         assert run_stage(campaign.main, description="", argv=argv) == 0

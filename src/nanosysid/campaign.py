@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import inspect
 import math
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
@@ -35,6 +36,7 @@ from nanosysid.launcher import map_tasks
 from nanosysid.sim import EFFECTS, SimConfig
 from nanosysid.sim import world as nature
 from nanosysid.sim.simulator import collective_thrust_coefficient
+from nanosysid.sim.trajectories import make_reference, square
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "HiddenWorld", "Setup", "draw", "simulate", "judge", "check", "summarize",
@@ -135,19 +137,34 @@ def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3
     return out
 
 
+def _square_within(options: Mapping[str, Any], duration: float) -> dict[str, Any]:
+    """The square's ``options`` changed so that it lasts at most ``duration`` s: its holds
+    shortened first, then its moves, with its side and step shrunk as the moves' time squared
+    so that its accelerations stay those of ``options``."""
+    sq = {**{k: p.default for k, p in inspect.signature(square).parameters.items()}, **options}
+    full = make_reference("square", **sq).duration
+    moving = make_reference("square", **{**sq, "hold": 0.0}).duration
+    if duration >= full:
+        return dict(options)
+    if duration >= moving:
+        return {**sq, "hold": sq["hold"] * (duration - moving) / (full - moving)}
+    s = duration / moving
+    return {**sq, "hold": 0.0, "move": sq["move"] * s, "side": sq["side"] * s**2, "z_step": sq["z_step"] * s**2}
+
+
 def short_flights_config(duration: float = 20.0, base: SimConfig | None = None, *,
                          calibration: float | None = None) -> SimConfig:
     """``base`` (the default simulator's config) with every benchmark trajectory ``duration``
-    seconds long, and the yaw calibration flight ``calibration`` seconds long (None: as ``base``
-    flies it, so that the campaign judges the identification the product runs: a sweep from
-    0.05 Hz cut to 20 s holds one slow cycle, and k_M's estimate from it is two to three times
-    more scattered)."""
+    seconds long (the square at most: longer than its 19 s it is flown as it is), and the yaw
+    calibration flight ``calibration`` seconds long (None: as ``base`` flies it, so that the
+    campaign judges the identification the product runs: a sweep from 0.05 Hz cut to 20 s holds
+    one slow cycle, and k_M's estimate from it is two to three times more scattered)."""
     base = base or SimConfig()
     default = base.trajectories
     sweep = dict(default["yawsweep"]) if calibration is None else {
         "duration": calibration, "fade": min(3.0, 0.1 * calibration)}
     return dataclasses.replace(base, trajectories={
-        "square": {},
+        "square": _square_within(default.get("square", {}), duration),
         "random": {**default["random"], "duration": duration, "n_points": max(4, int(round(0.9 * duration)))},
         "melon": {**default["melon"], "duration": duration, "circle_time": 0.75 * duration,
                   "return_time": 0.15 * duration},
