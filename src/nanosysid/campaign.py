@@ -235,17 +235,15 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
           horizon: int = 50) -> dict[str, Any]:
     """Discovery on one world's flights, and its verdicts scored against the world; ``without``
     (effect -> the test flight flown without it) gives each effect's impact on the nominal SimErr.
-    Discovery's nominal model is the setup's vehicle with k_F and k_M identified on the training
-    flights."""
+    Discovery's nominal model is the setup's vehicle with k_F and k_M as the identify stage gives
+    them (:func:`identification`): what discovery starts from in the pipeline."""
     setup = setup or Setup()
     train = [f for f in flights if f.trajectory in setup.train]
     test = [f for f in flights if f.trajectory == setup.test]
-    ident = identification(world, flights, setup)
+    ident, nominal = _identified(world, flights, setup)
     extra = world.extra_wrench(setup.vehicle)
     oracle = sim.oracle(world.effects, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra)
     try:
-        thrust, yaw = identify.identify(train, setup.vehicle)
-        nominal = dataclasses.replace(setup.vehicle, k_f=thrust.coef, k_m=yaw.coef)
         r = discover.run(train, test, vehicle=nominal, oracle=oracle, sindy=True, analysis=False, horizon=horizon,
                          inertia_z_range=setup.inertia_z_range)
     except PredictionError as e:  # the augmented model diverges on the test flight: a failure of discovery
@@ -321,6 +319,13 @@ def identification(world: HiddenWorld, flights: Sequence, setup: Setup | None = 
     relative to the truth, and whether each 95 % interval covers it (k_M's with the yaw inertia
     anywhere in ``setup.inertia_z_range``, and with the vehicle's taken as exact); k_M counts as
     identifiable where the world's inertia is the nominal one (the gyro's torque is read with it)."""
+    return _identified(world, flights, setup)[0]
+
+
+def _identified(world: HiddenWorld, flights: Sequence, setup: Setup | None = None) -> tuple[dict[str, Any], Vehicle]:
+    """:func:`identification`'s row, and the setup's vehicle with the k_F and k_M the identify
+    stage would write (k_M by instrumental variables where there is a calibration flight, else
+    the paper's least squares)."""
     setup = setup or Setup()
     cfg = setup.sync
     evidence = [motor_lag_evidence(f.name, pd.DataFrame({"t_src": f.t, "az": f.extra["az_body"]}),
@@ -336,6 +341,7 @@ def identification(world: HiddenWorld, flights: Sequence, setup: Setup | None = 
     cal = [aligned(f) for f in flights if f.trajectory == setup.calibration]
     vehicle = setup.vehicle
     thrust = identify.fit_thrust(train, vehicle)
+    paper = identify.fit_yaw_moment(train, vehicle)
     k_f_target = collective_thrust_coefficient([f for f in flights if f.trajectory in setup.train])
     out: dict[str, Any] = {
         "lag_true": truth_lag, "lag": lag.value, "lag_error": lag.value - truth_lag, "lag_events": lag.events,
@@ -343,8 +349,9 @@ def identification(world: HiddenWorld, flights: Sequence, setup: Setup | None = 
         "k_f_error": thrust.coef / vehicle.k_f - 1,
         "k_f_covered": bool(thrust.ci95[0] <= k_f_target <= thrust.ci95[1]),
         "k_m_identifiable": "inertia_offset" not in world.effects,
-        "k_m_paper_error": identify.fit_yaw_moment(train, vehicle).coef / vehicle.k_m - 1,
+        "k_m_paper_error": paper.coef / vehicle.k_m - 1,
     }
+    yaw = paper
     if cal:
         yaw = identify.with_inertia_range(identify.fit_yaw_moment_iv(cal, vehicle, blocks=6), vehicle.inertia[2],
                                           setup.inertia_z_range)
@@ -352,7 +359,7 @@ def identification(world: HiddenWorld, flights: Sequence, setup: Setup | None = 
         out["k_m_covered_given_inertia"] = bool(yaw.ci95[0] <= vehicle.k_m <= yaw.ci95[1])
         ci = yaw.ci95 if yaw.ci95_inertia is None else yaw.ci95_inertia
         out["k_m_covered"] = bool(ci[0] <= vehicle.k_m <= ci[1])
-    return out
+    return out, dataclasses.replace(vehicle, k_f=thrust.coef, k_m=yaw.coef)
 
 
 def _check_chunk(worlds: Sequence[HiddenWorld], setup: Setup, horizon: int) -> list[dict[str, Any]]:

@@ -152,7 +152,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     total = float(search.grams(0.0).et.sum())
 
     selection = prune(search, select(search, delays, alpha=alpha, floor=floor, total=total), share)
-    fit = coefficients(search, selection, v)
+    fit = coefficients(search, selection, v, inertia_z_range)
     findings = named(search, selection, fit, v, delays, inertia_z_range)
     rest = unnamed(search, selection, alpha=alpha, floor=floor, total=total)
     findings += rest.findings

@@ -164,17 +164,31 @@ class Grams:
         self.B, self.P = B, P
         self.fold = np.arange(B) % folds
         self.folds = folds
+        self.fixed_values: dict[int, float] = {}
         self.Gt, self.ht, self.et = self.G.sum(1), self.h.sum(1), self.e.sum(1)  # channels summed
+
+    def _like(self, G: np.ndarray, h: np.ndarray, e: np.ndarray) -> "Grams":
+        g = object.__new__(Grams)
+        g.G, g.h, g.e = G, h, e
+        g.B, g.P, g.fold, g.folds, g.fixed_values = self.B, self.P, self.fold, self.folds, dict(self.fixed_values)
+        g.Gt, g.ht, g.et = G.sum(1), h.sum(1), e.sum(1)
+        return g
 
     def scaled(self, scale: np.ndarray) -> "Grams":
         """The same normal equations with every column scaled per channel: column ``p`` times
         ``scale[c, p]`` on channel ``c`` (``scale`` ``(6, P)``)."""
-        g = object.__new__(Grams)
-        g.G = self.G * scale[None, :, :, None] * scale[None, :, None, :]
-        g.h = self.h * scale[None]
-        g.e = self.e
-        g.B, g.P, g.fold, g.folds = self.B, self.P, self.fold, self.folds
-        g.Gt, g.ht, g.et = g.G.sum(1), g.h.sum(1), g.e.sum(1)
+        return self._like(self.G * scale[None, :, :, None] * scale[None, :, None, :], self.h * scale[None], self.e)
+
+    def fixed(self, col: int, value: float) -> "Grams":
+        """The normal equations with column ``col``'s coefficient held at ``value``: its share
+        moved to the residual, and :meth:`solve` gives ``value`` for it."""
+        G, h = self.G.copy(), self.h - value * self.G[..., col]
+        e = self.e - 2 * value * self.h[..., col] + value ** 2 * self.G[..., col, col]
+        G[..., col, :] = 0.0
+        G[..., :, col] = 0.0
+        h[..., col] = 0.0
+        g = self._like(G, h, e)
+        g.fixed_values[col] = float(value)
         return g
 
     def solve(self, cols: np.ndarray, blocks: np.ndarray | None = None) -> np.ndarray:
@@ -182,7 +196,11 @@ class Grams:
         idx = slice(None) if blocks is None else blocks
         A = self.Gt[idx].sum(0)[np.ix_(cols, cols)]
         b = self.ht[idx].sum(0)[cols]
-        return _solve(A, b)
+        x = _solve(A, b)
+        for i, c in enumerate(cols):
+            if int(c) in self.fixed_values:
+                x[i] = self.fixed_values[int(c)]
+        return x
 
     def sse(self, cols: np.ndarray, theta: np.ndarray, blocks=slice(None), *, per_channel: bool = False) -> np.ndarray:
         """Weighted SSE of each block in ``blocks`` (per channel: ``(n, 6)``) left by ``theta``."""

@@ -109,7 +109,7 @@ class Search:
 
 
 def true_torque_grams(search: Search, g: Grams, chosen: Sequence[str], cols: np.ndarray, vehicle: Vehicle,
-                       iterations: int = 8) -> Grams:
+                       iterations: int = 8, yaw_inertia: float | None = None) -> Grams:
     """The normal equations in which every torque coefficient is in the true body's units.
 
     The measured torque is ``J dw/dt + w x Jw`` with the *nominal* J. Where the body's inertia
@@ -121,13 +121,22 @@ def true_torque_grams(search: Search, g: Grams, chosen: Sequence[str], cols: np.
     scaled by ``J / (J + dJ)`` and the fit is repeated with the ``dJ`` it finds (a fixed point,
     reached in a few rounds): the coefficients are then the true body's, one parametrisation
     for the fit and the model.
+
+    ``yaw_inertia`` (kg m²) holds the body's yaw inertia ``J_z + dJ_z`` at that value instead of
+    fitting it: the flights tell the yaw torques' ratios to J_z rather than J_z, so the fits at
+    the ends of its plausible range show how far every yaw coefficient may move with it.
     """
     if "inertia" not in chosen:
         return g
     J = np.asarray(vehicle.inertia)
     own = np.concatenate([search.offsets[n] for n in [NOMINAL.name, *chosen] if n == "inertia"])
+    base, held = g, None
+    if yaw_inertia is not None:
+        # the column coefficient c of dJ = c J / (J - c): c = J - J² / (J + dJ)
+        held = J[2] / yaw_inertia
+        base = g.fixed(int(own[2]), J[2] - J[2] * held)
     scale = np.ones((6, g.P))
-    fitted = g
+    fitted = base
     for _ in range(iterations):
         c = np.array(split_coefficients([NOMINAL.name, *chosen], fitted.solve(cols))["inertia"])
         ratio = np.clip((J - c) / J, 0.2, 5.0)  # J / (J + dJ), with dJ = c J / (J - c)
@@ -137,7 +146,7 @@ def true_torque_grams(search: Search, g: Grams, chosen: Sequence[str], cols: np.
         if np.allclose(new, scale, rtol=1e-6):
             break
         scale = new
-        fitted = g.scaled(scale)
+        fitted = base.scaled(scale)
     return fitted
 
 

@@ -35,6 +35,7 @@ class Coefficients:
         measured: The coefficients of every column in the measured torque's units (the
             disagreement analysis reads the residual these leave).
         rivals: The same fit with each plausible rival added: entry -> coefficients, one per rival.
+        rivals_per_fold: Each rival fit's coefficients fitted without each fold.
     """
 
     names: list[str]
@@ -42,16 +43,22 @@ class Coefficients:
     per_fold: list[dict[str, list[float]]]
     measured: np.ndarray
     rivals: list[dict[str, list[float]]]
+    rivals_per_fold: list[list[dict[str, list[float]]]]
 
 
-def coefficients(search: Search, selection: Selection, vehicle: Vehicle) -> Coefficients:
+def coefficients(search: Search, selection: Selection, vehicle: Vehicle,
+                 inertia_z_range: tuple[float, float] | None = None) -> Coefficients:
     """The final fit of the chosen entries, the fits without each fold, and the fits with each
     plausible rival: the eligible candidates the selection passed over, and the physically
     plausible candidates of its last round, which it found too small or not significant (a
     collinear entry adds little once the chosen ones have taken its share, which is why its
     absence is no evidence). A coefficient that moves when a rival joins is uncertain by that
     much beyond the folds' scatter (collinear or misspecified columns bias it; the folds cannot
-    show a bias)."""
+    show a bias); each rival fit's own scatter over the folds is kept too (a rival that takes
+    over a collinear share leaves the coefficient less determined than the chosen fit does).
+    Where the inertia correction is chosen and ``inertia_z_range`` (kg m²) is given, the fits
+    with the yaw inertia held at each end of it are rivals too: the flights tell the yaw
+    torques' ratios to J_z, so k_M's refit and a rotor inertia move with it."""
     chosen, delay = selection.chosen, selection.delay
     g = search.grams(delay)
     cols = search.cols(chosen)
@@ -63,20 +70,26 @@ def coefficients(search: Search, selection: Selection, vehicle: Vehicle) -> Coef
     passed_over = {n for pk in selection.picks for n in pk.competitors + [pk.name]}
     last = {c.name for c in selection.rounds[-1] if c.plausible} if selection.rounds else set()
     rivals = sorted((passed_over | last) - set(chosen) - {DELAY.name})
-    rival_coef = []
+    rival_coef, rival_folds = [], []
     for n in rivals:
         alt_cols = search.cols(chosen + [n])
         alt_g = true_torque_grams(search, search.grams(delay), chosen + [n], alt_cols, vehicle)
         rival_coef.append(split_coefficients(names + [n], alt_g.solve(alt_cols)))
+        rival_folds.append([split_coefficients(names + [n], t) for t in alt_g.heldout(alt_cols)[1]])
+    if INERTIA in chosen and inertia_z_range is not None:
+        for jz in inertia_z_range:
+            alt_g = true_torque_grams(search, search.grams(delay), chosen, cols, vehicle, yaw_inertia=float(jz))
+            rival_coef.append(split_coefficients(names, alt_g.solve(cols)))
+            rival_folds.append([split_coefficients(names, t) for t in alt_g.heldout(cols)[1]])
     return Coefficients(names, split_coefficients(names, theta), [split_coefficients(names, t) for t in thetas],
-                        measured, rival_coef)
+                        measured, rival_coef, rival_folds)
 
 
 def named(search: Search, selection: Selection, fit: Coefficients, vehicle: Vehicle,
           delays: Sequence[float], inertia_z_range: tuple[float, float] | None = None) -> list[Finding]:
     """One finding per pick: named, or ambiguous where an alternative is not named later; with
-    each coefficient's 95 % interval (the rivals' range widened by the folds' jackknife interval)
-    and the pick's stability.
+    each coefficient's 95 % interval (the union of the chosen fit's and every rival fit's
+    interval, each its value widened by its folds' jackknife interval) and the pick's stability.
 
     ``inertia_z_range`` (kg m², the yaw inertia's plausible range) widens the yaw inertia
     correction's interval to reach every value in it: the yaw torque is read through the yaw
@@ -116,7 +129,14 @@ def named(search: Search, selection: Selection, fit: Coefficients, vehicle: Vehi
             ev["ci"] = {k: (params[k] - half[k] - below, params[k] + half[k] + above) for k in params}
         else:
             ev["rival_range"] = {k: (float(spread[:, i].min()), float(spread[:, i].max())) for i, k in enumerate(params)}
-            ev["ci"] = {k: (ev["rival_range"][k][0] - half[k], ev["rival_range"][k][1] + half[k]) for k in params}
+            own = [half[k] for k in params]
+            halves = np.array([own] + [_rival_half(c, name, folds, vehicle, search.folds, own)
+                                       for folds in fit.rivals_per_fold])
+            lo, hi = (spread - halves).min(axis=0), (spread + halves).max(axis=0)
+            if c.bound is not None:  # beyond its bound no fit of the entry is plausible (the selection's rule)
+                reach = c.bound * np.abs(np.asarray(c.nominal(vehicle)))
+                lo, hi = np.maximum(lo, np.minimum(-reach, spread[0])), np.minimum(hi, np.maximum(reach, spread[0]))
+            ev["ci"] = {k: (float(lo[i]), float(hi[i])) for i, k in enumerate(params)}
             if name == INERTIA and inertia_z_range is not None:
                 k, jz = c.params[2], vehicle.inertia[2]
                 lo, hi = ev["ci"][k]
@@ -132,6 +152,20 @@ def named(search: Search, selection: Selection, fit: Coefficients, vehicle: Vehi
         else:
             findings.append(Finding("named", name, channels, params, ev))
     return findings
+
+
+def _rival_half(c, name: str, folds: Sequence[dict[str, list[float]]], vehicle: Vehicle, n_folds: int,
+                own: Sequence[float]) -> np.ndarray:
+    """Half-widths of a rival fit's own 95 % intervals of entry ``c``'s values (its folds'
+    jackknife); where a fold puts a value beyond the entry's physical bound, or not finite, the
+    rival does not determine it, and the chosen fit's half-widths ``own`` are used."""
+    vals = np.array([c.values(fc[name], vehicle) for fc in folds])
+    ok = np.all(np.isfinite(vals))
+    if ok and c.bound is not None:
+        ok = bool(np.all(np.abs(vals) <= c.bound * np.abs(np.asarray(c.nominal(vehicle)))))
+    if not ok:
+        return np.asarray(own, dtype=float)
+    return np.array([half_width(x, n_folds) for x in jackknife(vals)])
 
 
 @dataclass

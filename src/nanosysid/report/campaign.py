@@ -2,10 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from typing import Any, Sequence
 
 import pandas as pd
+
+from nanosysid.dataio import json_text
 
 __all__ = ["summary_markdown", "worlds_table"]
 
@@ -69,6 +70,11 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
     return "\n".join(L)
 
 
+def _json_cell(value) -> str:
+    """A table cell of strict JSON on one line (an unbounded interval's end is null)."""
+    return json_text(value, indent=None, sort_keys=True).rstrip("\n")
+
+
 def worlds_table(rows: Sequence[dict[str, Any]], effects: Sequence[str]) -> pd.DataFrame:
     """One row per world: its seed, each effect's strength (0: absent), the user effect, the
     verdicts, each effect's impact on the nominal SimErr, the gap closed and the SimErr of every
@@ -81,9 +87,9 @@ def worlds_table(rows: Sequence[dict[str, Any]], effects: Sequence[str]) -> pd.D
         row["user_strength"] = float(r["user_strength"])
         row["error"] = r.get("error", "")
         for k in ("named", "ambiguous", "unnamed", "false_named"):
-            row[k] = json.dumps(r.get(k, []))
-        row["recalled"] = json.dumps(r.get("recalled", {}), sort_keys=True)
-        row["coverage"] = json.dumps(r.get("coverage", []), sort_keys=True)
+            row[k] = _json_cell(r.get(k, []))
+        row["recalled"] = _json_cell(r.get("recalled", {}))
+        row["coverage"] = _json_cell(r.get("coverage", []))
         row.update({f"impact_{e}": float(r.get("impact", {}).get(e, float("nan"))) for e in effects})
         for k in ("gap_closed", "sindy_gap_closed", "gap_share"):
             v = r.get(k)
