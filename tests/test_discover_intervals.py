@@ -36,3 +36,34 @@ def test_the_quantile_is_students_t_with_a_degree_fewer_than_the_groups():
     # tables: t_0.975 with 9 degrees of freedom is 2.262, with 1 it is 12.706
     assert abs(_half_width(1.0, 10) - 2.262) < 1e-3
     assert abs(_half_width(0.5, 2) - 0.5 * 12.706) < 1e-2
+
+
+def test_a_coefficient_held_fixed_is_the_fit_of_what_it_leaves():
+    # holding column 1 at c is the least-squares fit of y - c x_1 on the other columns, computed
+    # here from the samples themselves; its held-out error is that of the residual left
+    rng = np.random.default_rng(5)
+    n, folds = 400, 4
+    ids = np.repeat(np.arange(20), n // 20)
+    X = np.zeros((n, 6, 3))
+    X[:, 2] = rng.standard_normal((n, 3))
+    X[:, 5, 1] = rng.standard_normal(n)  # column 1 also acts on another channel
+    y = np.zeros((n, 6))
+    y[:, 2] = X[:, 2] @ np.array([0.5, -1.0, 2.0]) + 0.1 * rng.standard_normal(n)
+    y[:, 5] = -1.0 * X[:, 5, 1] + 0.1 * rng.standard_normal(n)
+    weights = np.array([1.0, 1.0, 2.0, 1.0, 1.0, 0.5])
+    c = -0.8
+    g = Grams(X, y, weights, ids, folds).fixed(1, c)
+    cols = np.arange(3)
+    rest = (y - c * X[..., 1]) * weights  # (n, 6)
+    A = (X[..., [0, 2]] * weights[None, :, None]).reshape(-1, 2)
+    expected = np.linalg.lstsq(A, rest.reshape(-1), rcond=None)[0]
+    theta = g.solve(cols)
+    assert theta[1] == c
+    np.testing.assert_allclose(theta[[0, 2]], expected, rtol=1e-10)
+    sse, per_fold = g.heldout(cols)
+    assert np.all(per_fold[:, 1] == c)
+    k = 0  # the blocks of fold 0, held out of the fit on the others
+    test = np.isin(ids, np.flatnonzero(np.arange(20) % folds == k))
+    th = np.linalg.lstsq(A[np.repeat(~test, 6)], rest[~test].reshape(-1), rcond=None)[0]
+    left = rest[test] - (X[test][..., [0, 2]] * weights[None, :, None]) @ th
+    np.testing.assert_allclose(sse[np.arange(20) % folds == k].sum(), (left ** 2).sum(), rtol=1e-9)
