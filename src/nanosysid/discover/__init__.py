@@ -51,11 +51,13 @@ units: where the inertia correction is chosen, every other torque column is scal
 ``J / (J + dJ)`` and refitted until ``dJ`` settles, so k_M, a rotor inertia or a damping is the
 one the augmented model (which integrates with ``J + dJ``) must apply. Their 95 % intervals
 take both kinds of uncertainty: the folds' scatter (a delete-a-fold jackknife of the physical
-values, Student's t for the folds' number) around the range the value takes when each plausible
-rival (an eligible candidate the selection passed over) joins the fit, which the folds cannot
-show: a collinear or misspecified column biases a coefficient the same way in every fold. Its
-stability is the share of the folds on which it beats, held out, every other eligible candidate
-of its round.
+values, Student's t for the folds' number) of the chosen fit and of each fit with a plausible
+rival joined (an eligible candidate the selection passed over, or one it found too small), the
+union of them all, within the entry's physical bound. The folds alone cannot show a bias: a
+collinear or missing column moves a coefficient the same way in every fold. With the inertia
+correction chosen, the fits with the yaw inertia held at each end of its plausible range are
+rivals too. Its stability is the share of the folds on which it beats, held out, every other
+eligible candidate of its round.
 
 **The phases**, each its own module: the regression data, noise floor, blocks and folds
 (:mod:`~nanosysid.discover.search`, over :mod:`~nanosysid.discover.fit`); the candidate search

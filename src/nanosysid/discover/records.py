@@ -106,9 +106,10 @@ class Finding:
             the augmented model uses (ambiguous), of the generic terms kept (unnamed).
         evidence: ``heldout_gain`` (share of the nominal residual's weighted sum of squares,
             held out), ``z``, ``p`` (Bonferroni-adjusted), ``blocks_improved`` / ``blocks``,
-            ``stderr`` (jackknife over the folds) and ``ci`` per coefficient (95 %: the range
-            its value takes when each plausible rival joins the fit, widened by the folds'
-            interval, Student's t with one degree of freedom fewer than folds), ``rival_range``,
+            ``stderr`` (jackknife over the folds) and ``ci`` per coefficient (95 %: the union
+            of the chosen fit's interval and each plausible rival fit's, each the folds'
+            jackknife with Student's t for one degree of freedom fewer than folds, within the
+            entry's physical bound), ``rival_range`` (the values alone),
             ``stability`` (share of the held-out folds on which it beats every other eligible
             candidate of its round), ``round``; ambiguous: ``used``, ``separate_by``; unnamed: ``regime``,
             ``band``, and ``added`` False where its terms would make the training rollouts
