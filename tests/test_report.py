@@ -142,3 +142,20 @@ def test_a_pattern_unlike_the_papers_fails_its_criteria():
     assert not c.checks["naive and physics rows within x1.5"]
     text = paper.results_markdown(c)
     assert "0.0252 / 0.0126 (2.00 ✗)" in text and "- ✗ naive and physics rows within x1.5" in text
+
+
+def test_the_campaigns_world_table_holds_strict_json_with_an_open_interval_end_as_null():
+    # a delay found at the search's largest has an interval open above
+    from nanosysid.report.campaign import worlds_table
+
+    cover = {"entry": "input_delay", "param": "delay [s]", "truth": 0.0819, "value": 0.08, "low": 0.0775,
+             "high": float("inf"), "covered": True}
+    row = {"world": 3, "seed": 7, "effects": {"telemetry_delay": 2.7}, "user": None, "user_strength": 0.0,
+           "named": ["input_delay"], "coverage": [cover]}
+    cell = worlds_table([row], ["telemetry_delay"])["coverage"][0]
+
+    def refuse(constant):
+        raise ValueError(f"non-standard JSON constant {constant}")
+
+    (got,) = json.loads(cell, parse_constant=refuse)
+    assert got["high"] is None and got["low"] == 0.0775 and got["covered"] is True
