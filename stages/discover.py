@@ -11,7 +11,7 @@ from nanosysid import discover, protocol
 from nanosysid.dataio import atomic_dir
 from nanosysid.discover.model import save_discovered
 from nanosysid.effects import entry
-from nanosysid.identify import identified_vehicle
+from nanosysid.identify import identified_vehicle, read_identified
 from nanosysid.predictors import build_from_options
 from nanosysid.report.discovery import write_report
 from nanosysid.sim.world import DEFAULT_WORLD, state_effects
@@ -47,10 +47,23 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     save_discovered(Path(dc.out_dir) / "model.json", result.vehicle, effects, result.model.delay,
                     dt=step.dt, substeps=step.substeps)
     with atomic_dir(Path(dc.report_dir), inputs=[cfg.paths.split]) as tmp:
-        write_report(result, tmp)
+        write_report(result, tmp, nominal=_nominal_source(dc.identified))
     log.info("discover: %s; SimErr p %.3g -> %.3g, v %.3g -> %.3g, R %.3g -> %.3g, w %.3g -> %.3g", result.name,
              *(x for q in "pvRw" for x in (result.before.simerr[q], result.after.simerr[q])))
     return result
+
+
+def _nominal_source(identified) -> str:
+    """Where the nominal k_F and k_M come from, in words for the report."""
+    if identified is None:
+        return "the configured vehicle's (`discover.identified: null`)"
+    d = read_identified(identified)
+
+    def by(fit: str) -> str:
+        estimator = (d.get(fit) or {}).get("estimator") if isinstance(d.get(fit), dict) else None
+        return f" by {estimator}" if estimator else ""
+
+    return f"from the identify stage's {Path(identified).name}: k_F{by('thrust_fit')}; k_M{by('yaw_fit')}"
 
 
 if __name__ == "__main__":

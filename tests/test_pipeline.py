@@ -326,6 +326,9 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     # each named effect is in the report with the coefficients of the result
     text = (tiny / "discovery" / "report.md").read_text()
     assert "## Verdicts" in text
+    # and it says which k_M its nominal model started from: the identify stage's estimator
+    ident = json.loads((tiny / "physics" / "params.json").read_text())
+    assert f"k_M by {ident['yaw_fit']['estimator']}" in text
     for f in result["findings"]:
         if f["verdict"] == "named":
             assert f"`{f['name']}` named" in text

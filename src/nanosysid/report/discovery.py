@@ -114,8 +114,9 @@ def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
-def write_report(result: DiscoveryResult, out: Path) -> None:
-    """``report.md``, ``result.json``, ``verdicts.md`` (for the rerun recordings) and ``figures/`` in ``out``."""
+def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given to discovery") -> None:
+    """``report.md``, ``result.json``, ``verdicts.md`` (for the rerun recordings) and ``figures/`` in
+    ``out``; ``nominal`` says where the nominal model's k_F and k_M come from."""
     out = Path(out)
     a = result.analysis
     figs = out / "figures"
@@ -138,7 +139,7 @@ def write_report(result: DiscoveryResult, out: Path) -> None:
 
     L: list[str] = ["# Model-discrepancy discovery", ""]
     counts = {v: sum(f.verdict == v for f in result.findings) for v in VERDICTS}
-    L += [f"The nominal model (rigid body with the torque equation, k_F and k_M identified on the training flights) "
+    L += [f"The nominal model (rigid body with the torque equation, k_F and k_M {nominal}) "
           f"was compared with the measurements. {len(result.findings)} disagreements stand above the noise floor: "
           f"{counts['named']} named, {counts['ambiguous']} ambiguous, {counts['unnamed']} unnamed, "
           f"{counts['not a function of the state']} not a function of the state. The augmented model "
