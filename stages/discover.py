@@ -60,7 +60,8 @@ def _nominal_source(identified) -> str:
     d = read_identified(identified)
 
     def by(fit: str) -> str:
-        estimator = (d.get(fit) or {}).get("estimator") if isinstance(d.get(fit), dict) else None
+        record = d.get(fit)
+        estimator = record.get("estimator") if isinstance(record, dict) else None
         return f" by {estimator}" if estimator else ""
 
     return f"from the identify stage's {Path(identified).name}: k_F{by('thrust_fit')}; k_M{by('yaw_fit')}"
