@@ -389,3 +389,43 @@ def test_motor_lag_is_one_per_session_and_a_flight_off_it_is_reported(raw, tmp_p
     assert any("this flight's own lag" in w for w in report["warnings"])
     _, report = sync_flight("melon_20250601_run1", tables["melon_20250601_run1"], cfg, motor_lag=session)
     assert not any("own lag" in w for w in report["warnings"]) or abs(session.value - 0.050) > cfg.lag_tolerance
+
+
+def _closed_loop_signals(lag: float, seed: int = 0, duration: float = 120.0, step: float = 0.002):
+    """A thrust loop by hand, on a 2 ms grid: the reference asks for steps of thrust every second;
+    a low-passed disturbance (3 Hz) adds to the measured acceleration, and the loop answers it
+    through the rotors 30 ms later; the telemetry records the rotors ``lag`` s late."""
+    from scipy.signal import butter, lfilter, sosfiltfilt
+
+    rng = np.random.default_rng(seed)
+    n = int(duration / step)
+    t = np.arange(n) * step
+    ask = np.repeat(rng.normal(size=int(duration) + 1), int(1 / step))[:n]  # thrust steps (m/s^2)
+    b, a = butter(1, 1 / (2 * np.pi * 0.03), fs=1 / step)  # rotors: first order, 30 ms
+    dist = lfilter(*butter(2, 3.0, fs=1 / step), rng.normal(scale=1.5, size=n))
+    late = int(0.03 / step)
+    thrust = lfilter(b, a, ask - 0.8 * np.r_[np.zeros(late), dist[:-late]])
+    acc = thrust + dist + rng.normal(scale=0.05, size=n)
+    recorded = np.interp(t - lag, t, thrust)
+    velocity = np.cumsum(acc) * step
+    sos = butter(2, (1.0, 20.0), "bandpass", fs=1 / step, output="sos")
+    return t, *(sosfiltfilt(sos, x - x.mean()) for x in (ask, acc, recorded, velocity))
+
+
+def test_the_setpoints_as_instruments_find_a_lag_the_loops_answers_pull_early():
+    # The disturbance is in a_z at once and in the rotors 30 ms later (negative): the plain
+    # correlation of a_z with the recorded rotors peaks early. The reference's thrust steps do not
+    # answer the disturbance, so their moments give the telemetry's 40 ms, and its interval holds it.
+    from nanosysid.preprocess.sync import LagEvidence, xcorr_lag
+
+    cfg = SyncConfig()
+    t, ask, acc, recorded, velocity = _closed_loop_signals(0.040)
+    plain = xcorr_lag(acc, recorded, 0.002, cfg.max_lag, cfg.xcorr_band)
+    assert plain < 0.040 - 0.005  # the loop's answers bias the paper's method
+    reach = int(round((cfg.lag_reach + cfg.max_lag) / 0.002))
+    ask[:reach] = ask[-reach:] = 0.0
+    evidence = LagEvidence("hand", 0.002, acc, recorded, 1.0, ask, velocity)
+    lag = motor_lag_estimate([evidence], cfg)
+    assert lag.method == "the setpoints as instruments" and lag.units >= 50
+    assert lag.value == pytest.approx(0.040, abs=0.003)
+    assert lag.interval[0] <= 0.040 <= lag.interval[1] and lag.interval[1] - lag.interval[0] < 0.010

@@ -29,7 +29,7 @@ import pandas as pd
 import torch
 
 from nanosysid import discover, identify, protocol, sim, so3
-from nanosysid.preprocess.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence
+from nanosysid.preprocess.sync import LagEvidence, SyncConfig, motor_lag_estimate, motor_lag_evidence
 from nanosysid.effects import LIBRARY
 from nanosysid.errors import PredictionError
 from nanosysid.launcher import map_tasks
@@ -41,7 +41,7 @@ from nanosysid.vehicle import Vehicle
 
 __all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "HiddenWorld", "Setup", "draw", "simulate", "judge", "check", "summarize",
            "identification", "summarize_identification", "library_truth", "coefficient_coverage",
-           "short_flights_config", "STRENGTH_BINS"]
+           "short_flights_config", "lag_evidence", "STRENGTH_BINS"]
 
 
 
@@ -313,7 +313,7 @@ def coefficient_coverage(world: HiddenWorld, findings: Sequence, vehicle: Vehicl
 
 def identification(world: HiddenWorld, flights: Sequence, setup: Setup | None = None) -> dict[str, Any]:
     """The sync and identify steps on one world's flights against the world's truth: the motor
-    telemetry's lag (the transients of all its flights, one session), then, with the rotor speeds
+    telemetry's lag (all its flights, one session, with the setpoints as instruments), then, with the rotor speeds
     moved by it, k_F (least squares on the training flights) and k_M (instrumental variables on
     the calibration flight; the paper's least squares on the training flights beside). Errors
     relative to the truth, and whether each 95 % interval covers it (k_M's with the yaw inertia
@@ -322,16 +322,26 @@ def identification(world: HiddenWorld, flights: Sequence, setup: Setup | None = 
     return _identified(world, flights, setup)[0]
 
 
+def lag_evidence(flight, setup: Setup | None = None) -> LagEvidence:
+    """What one simulated flight says about its motor telemetry's lag, as the sync step reads it
+    from the bags: the accelerometer, the rotor speeds as recorded, the onboard estimate and the
+    host's setpoints (the reference of the flight's trajectory under the setup's simulator)."""
+    setup = setup or Setup()
+    f = flight
+    setpoint = pd.DataFrame(sim.trajectory_reference(f.trajectory, setup.sim).pva(f.t)[0], columns=["x", "y", "z"])
+    odom = pd.DataFrame(f.y[:, 3:10], columns=["vx", "vy", "vz", "qx", "qy", "qz", "qw"])
+    return motor_lag_evidence(f.name, pd.DataFrame({"t_src": f.t, "az": f.extra["az_body"]}),
+                              pd.DataFrame({"t_src": f.t, **{f"m{i + 1}": f.u[:, i] for i in range(4)}}), setup.sync,
+                              setpoint=setpoint.assign(t_src=f.t), odom=odom.assign(t_src=f.t))
+
+
 def _identified(world: HiddenWorld, flights: Sequence, setup: Setup | None = None) -> tuple[dict[str, Any], Vehicle]:
     """:func:`identification`'s row, and the setup's vehicle with the k_F and k_M the identify
     stage would write (k_M by instrumental variables where there is a calibration flight, else
     the paper's least squares)."""
     setup = setup or Setup()
     cfg = setup.sync
-    evidence = [motor_lag_evidence(f.name, pd.DataFrame({"t_src": f.t, "az": f.extra["az_body"]}),
-                                   pd.DataFrame({"t_src": f.t, **{f"m{i + 1}": f.u[:, i] for i in range(4)}}), cfg)
-                for f in flights]
-    lag = motor_lag_estimate(evidence, cfg)
+    lag = motor_lag_estimate([lag_evidence(f, setup) for f in flights], cfg)
     truth_lag = sim.World(dict(world.effects)).telemetry_delay
 
     def aligned(f):

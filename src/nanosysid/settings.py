@@ -73,6 +73,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("preprocess.sync.min_samples", COUNT), ("preprocess.sync.warn_gap", NONNEG_COUNT),
     ("preprocess.sync.warn_loss", NONNEG), ("preprocess.sync.lag_threshold", POSITIVE),
     ("preprocess.sync.lag_window", POSITIVE), ("preprocess.sync.lag_tolerance", POSITIVE),
+    ("preprocess.sync.lag_reach", POSITIVE), ("preprocess.sync.lag_block", POSITIVE),
     ("preprocess.sync.max_loss", NONNEG),
     ("preprocess.filter.rate", POSITIVE), ("preprocess.filter.order", COUNT),
     ("preprocess.filter.position", POSITIVE), ("preprocess.filter.velocity", POSITIVE),

@@ -10,7 +10,10 @@ The paper's method (section Data Preprocessing), in order:
    the lag that maximises the cross-correlation of the mocap and onboard positions, averaged
    over x, y and z (the paper's method); this removes the difference of the latencies.
 3. Motor telemetry against the accelerometer: the lag that maximises the cross-correlation of
-   ``a_z`` with the sum of squared rotor speeds, then the motor stamps are moved by it.
+   ``a_z`` with the sum of squared rotor speeds (the paper's method), then the motor stamps are
+   moved by it. In closed loop that correlation peaks early, so the lag applied is a property of
+   the rig estimated once per session with the host's setpoints as instruments
+   (:func:`motor_lag_estimate`).
 4. The flight segment: where the host's position setpoint is non-zero, mapped to STM32 time.
 5. Resampling to the 100 Hz grid of the STM32 clock: nearest neighbour for the onboard streams
    (retiming, which also fills lost packets with the closest measurement), interpolation for
@@ -28,7 +31,9 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
+from numpy.lib.stride_tricks import sliding_window_view
 from scipy import stats
+from scipy.constants import g as STANDARD_GRAVITY
 from scipy.signal import butter, sosfiltfilt
 from scipy.spatial.transform import Rotation, Slerp
 from tqdm.auto import tqdm
@@ -38,7 +43,7 @@ from nanosysid.errors import DataError
 from nanosysid.settings import configured
 
 __all__ = ["SyncConfig", "sync_flight", "sync_folder", "clock_fit", "xcorr_lag", "LagEvidence", "LagEstimate",
-           "motor_lag_evidence", "motor_lag_estimate"]
+           "motor_lag_evidence", "motor_lag_estimate", "onboard_clock", "setpoint_on_stm", "INSTRUMENTED", "WHOLE_FLIGHT"]
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +66,8 @@ class SyncConfig:
     lag_threshold: float
     lag_window: float
     lag_tolerance: float
+    lag_reach: float
+    lag_block: float
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "SyncConfig":
@@ -134,6 +141,11 @@ class LagEvidence:
             clock (telemetry stamps as recorded), both band-passed.
         background: Robust standard deviation of the proxy's rate of change (1/s per step):
             the scale of the loop's answers to the disturbances.
+        instrument: The thrust the host's position setpoints ask for, ``|p_ref'' + g e_z|``
+            (m/s^2), band-passed on the same grid and zero where the instrument's moments would
+            reach past the record; None without setpoints.
+        velocity: The body-z velocity (m/s) from the onboard estimate, band-passed on the same
+            grid: the drag along the thrust axis, which follows the reference as the thrust does.
     """
 
     flight: str
@@ -141,14 +153,17 @@ class LagEvidence:
     az: np.ndarray
     proxy: np.ndarray
     background: float
+    instrument: np.ndarray | None = None
+    velocity: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
 class LagEstimate:
     """A motor lag (s) with its 95 % interval from independent repeats.
 
-    ``events`` counts the transients it rests on (0: the whole-flight fallback), ``units`` the
-    repeats its interval comes from (flights for a session, transients for one flight),
+    ``events`` counts the transients it rests on (0 with instruments, and for the whole-flight
+    fallback), ``units`` the repeats its interval comes from (blocks with instruments; flights for
+    a session, transients for one flight without),
     ``background`` is the rate-of-change scale its transients stood out from and ``threshold``
     the rate of change (same units) a transient exceeded.
     """
@@ -162,8 +177,24 @@ class LagEstimate:
     threshold: float
 
 
-def motor_lag_evidence(name: str, imu: pd.DataFrame, motors: pd.DataFrame, cfg: SyncConfig) -> LagEvidence:
-    """``a_z`` and ``sum Omega^2`` of one flight on a common grid, band-passed to ``cfg.xcorr_band``.
+def onboard_clock(odom: pd.DataFrame, imu: pd.DataFrame) -> tuple[float, float]:
+    """The STM32 clock's drift and offset against the host (:func:`clock_fit` over the onboard
+    streams): host time = ``t_stm * (1 + drift) + offset``."""
+    onboard = pd.concat([odom[["t_src", "t_recv"]], imu[["t_src", "t_recv"]]]).sort_values("t_src")
+    return clock_fit(onboard["t_src"].to_numpy(), onboard["t_recv"].to_numpy())
+
+
+def setpoint_on_stm(setpoint: pd.DataFrame, drift: float, offset: float) -> pd.DataFrame:
+    """The host's setpoints with their stamps mapped to the STM32 clock."""
+    return setpoint.assign(t_src=(setpoint["t_src"].to_numpy() - offset) / (1 + drift))
+
+
+def motor_lag_evidence(name: str, imu: pd.DataFrame, motors: pd.DataFrame, cfg: SyncConfig, *,
+                       setpoint: pd.DataFrame | None = None, odom: pd.DataFrame | None = None) -> LagEvidence:
+    """``a_z`` and ``sum Omega^2`` of one flight on a common grid, band-passed to ``cfg.xcorr_band``;
+    with ``setpoint`` (``t_src`` on the STM32 clock, ``x, y, z`` in m, zero outside the flight) and
+    ``odom`` (``t_src``, the attitude ``qx..qw`` and the world-frame velocity ``vx, vy, vz``), the
+    instrument and the body-z velocity too.
 
     Raises:
         DataError: the streams do not overlap, or no reading has all four rotors.
@@ -183,8 +214,32 @@ def motor_lag_evidence(name: str, imu: pd.DataFrame, motors: pd.DataFrame, cfg: 
     proxy = sosfiltfilt(sos, np.interp(tf, t_mot[valid], (m2[valid] ** 2).sum(axis=1)))
     az = sosfiltfilt(sos, np.interp(tf, t_imu, imu["az"].to_numpy()))
     rate = np.gradient(proxy)
+    instrument = velocity = None
+    if setpoint is not None and odom is not None:
+        instrument = _reference_thrust(tf, setpoint, sos)
+        if instrument is not None:
+            reach = int(round(cfg.lag_reach / step)) + int(round(cfg.max_lag / step))
+            instrument[:reach] = 0.0
+            instrument[len(tf) - reach:] = 0.0
+            q = odom[["qx", "qy", "qz", "qw"]].to_numpy(dtype=float, copy=True)
+            v_body = Rotation.from_quat(q).inv().apply(odom[["vx", "vy", "vz"]].to_numpy(dtype=float, copy=True))[:, 2]
+            velocity = sosfiltfilt(sos, np.interp(tf, odom["t_src"].to_numpy(), v_body))
     return LagEvidence(name, step, az - az.mean(), proxy - proxy.mean(),
-                       float(1.4826 * np.median(np.abs(rate - np.median(rate)))))
+                       float(1.4826 * np.median(np.abs(rate - np.median(rate)))), instrument, velocity)
+
+
+def _reference_thrust(tf: np.ndarray, setpoint: pd.DataFrame, sos: np.ndarray) -> np.ndarray | None:
+    """``|p_ref'' + g e_z|`` of the setpoints (second differences over their own stamps, inside the
+    flight only, held outside it) on the grid ``tf``, band-passed; None where the flight has fewer
+    than three setpoints."""
+    p = setpoint[["x", "y", "z"]].to_numpy()
+    on = np.linalg.norm(p, axis=1) > 0
+    t = setpoint["t_src"].to_numpy()[on]
+    if len(t) < 3 or not np.all(np.diff(t) > 0):
+        return None
+    acc = np.gradient(np.gradient(p[on], t, axis=0), t, axis=0)
+    thrust = np.linalg.norm(acc + np.array([0.0, 0.0, STANDARD_GRAVITY]), axis=1)
+    return sosfiltfilt(sos, np.interp(tf, t, thrust))
 
 
 def _transient_curves(e: LagEvidence, threshold: float, window: float, m: int) -> np.ndarray:
@@ -206,6 +261,77 @@ def _transient_curves(e: LagEvidence, threshold: float, window: float, m: int) -
     return np.array(curves).reshape(-1, 2 * m + 1)
 
 
+# The methods of the instrumented estimate and of the fallback, as LagEstimate.method says them.
+INSTRUMENTED = "the setpoints as instruments"
+WHOLE_FLIGHT = "whole-flight correlation"
+
+
+def _block_moments(e: LagEvidence, reach: int, search: int, block: int) -> list[tuple[np.ndarray, ...]]:
+    """The instrument's moments over each block of ``block`` grid steps of one flight:
+    ``sum_t z(t) x(t + k)`` for ``a_z`` and the body-z velocity (k = -reach..reach) and for the
+    proxy (k = -reach - search..reach + search); blocks where the instrument is zero are left out."""
+    z = e.instrument
+    lo, hi = reach + search, len(z) - reach - search
+    out = []
+    for a in range(lo, hi, block):
+        b = min(a + block, hi)
+        zb = z[a:b]
+        if not zb.any():
+            continue
+        out.append((np.correlate(e.az[a - reach:b + reach], zb, "valid"),
+                    np.correlate(e.proxy[a - reach - search:b + reach + search], zb, "valid"),
+                    np.correlate(e.velocity[a - reach:b + reach], zb, "valid")))
+    return out
+
+
+def _normal_terms(ra: np.ndarray, rp: np.ndarray, rv: np.ndarray) -> np.ndarray:
+    """``(2 search + 1, 5)``: for every lag, the normal equations' terms of one flight's moment
+    conditions ``r_a(k) = c r_p(k + lag) + b r_v(k)``: ``p.p, p.v, v.v, p.a, v.a``."""
+    P = sliding_window_view(rp, len(ra))
+    return np.column_stack([(P * P).sum(1), P @ rv, np.full(len(P), rv @ rv), P @ ra, np.full(len(P), rv @ ra)])
+
+
+def _explained(terms: np.ndarray) -> np.ndarray:
+    """The share of the ``a_z`` moments the fit explains at every lag (0 where the thrust's
+    coefficient comes out negative)."""
+    pp, pv, vv, pa, va = terms.T
+    det = pp * vv - pv * pv
+    ok = det > 1e-12 * np.maximum(pp * vv, 1e-300)
+    det = np.where(ok, det, 1.0)
+    c = (pa * vv - va * pv) / det
+    fit = (pa * pa * vv - 2 * pa * va * pv + va * va * pp) / det
+    return np.where(ok & (c > 0), fit, 0.0)
+
+
+def _instrumented_lag(evidence: Sequence[LagEvidence], cfg: SyncConfig) -> tuple[float, tuple[float, float], int] | None:
+    """The lag (s) from the instrument's moment conditions of every flight, with its 95 % interval
+    (a delete-one-block jackknife with Student's t) and the number of blocks; None where fewer than
+    two blocks carry the instrument."""
+    step = evidence[0].step
+    reach, search = int(round(cfg.lag_reach / step)), int(round(cfg.max_lag / step))
+    block = max(int(round(cfg.lag_block / step)), 1)
+    flights = [_block_moments(e, reach, search, block) for e in evidence if e.instrument is not None]
+    flights = [f for f in flights if f]
+    n = sum(len(f) for f in flights)
+    if n < 2:
+        return None
+    sums = [tuple(np.sum(x, axis=0) for x in zip(*f)) for f in flights]
+    terms = [_normal_terms(*m) for m in sums]
+    total = np.sum(terms, axis=0)
+    curve = _explained(total)
+    if not curve.any():
+        return None
+    value = _peak(curve) * step
+    loo = []
+    for f, blocks in enumerate(flights):
+        for ra, rp, rv in blocks:
+            ma, mp, mv = sums[f]
+            loo.append(_peak(_explained(total - terms[f] + _normal_terms(ma - ra, mp - rp, mv - rv))) * step)
+    loo = np.array(loo)
+    half = float(stats.t.ppf(0.975, n - 1)) * float(np.sqrt((n - 1) / n * ((loo - loo.mean()) ** 2).sum()))
+    return value, (value - half, value + half), n
+
+
 # The steps (times ``lag_threshold``) down which a rig's threshold is relaxed until its transients
 # give an interval. A rig with strong thrust disturbances answers them with fast rotor-speed
 # changes, which raise the background its reference steps must stand out from: with the
@@ -216,10 +342,20 @@ RELAX = (1.0, 0.8, 0.6, 0.5, 0.4)
 
 def motor_lag_estimate(evidence: Sequence[LagEvidence], cfg: SyncConfig, *,
                        threshold: float | None = None) -> LagEstimate:
-    """The motor lag of one rig (a recording session, or one flight), read off its sharp
-    thrust transients.
+    """The motor lag of one rig (a recording session, or one flight): with the host's setpoints
+    as instruments where the evidence has them, else read off its sharp thrust transients.
 
-    The closed loop answers every thrust disturbance through the rotor speeds a few tens of
+    With instruments (the default, ``threshold`` None): the thrust the setpoints ask for,
+    ``z(t) = |p_ref'' + g e_z|``, is set by the reference, not by the disturbances, so its moments
+    ``r_x(k) = sum_t z(t) x(t + k)`` obey ``r_a(k) = c r_p(k + lag) + b r_v(k)`` for
+    ``a_z``, the proxy ``sum Omega^2`` as recorded and the body-z velocity (the drag along the
+    thrust axis, which follows the reference too), whatever the loop answers to the
+    disturbances. The lag is the one whose fit of these conditions (k within
+    ``cfg.lag_reach`` s, stacked over the flights) explains most of the ``a_z`` moments; its
+    95 % interval a delete-one-block jackknife (blocks of ``cfg.lag_block`` s, Student's t).
+    ``events`` is 0 and ``units`` the blocks.
+
+    Without instruments: the closed loop answers every thrust disturbance through the rotor speeds a few tens of
     milliseconds later, so over a whole smooth flight the correlation of ``a_z`` with
     ``sum Omega^2`` peaks early (towards zero lag). A sharp transient is set by the reference,
     not by a disturbance: the proxy changes there ``cfg.lag_threshold`` times faster than the
@@ -237,6 +373,11 @@ def motor_lag_estimate(evidence: Sequence[LagEvidence], cfg: SyncConfig, *,
     step = evidence[0].step
     m = int(round(cfg.max_lag / step))
     scale = float(np.median([e.background for e in evidence]))
+    if threshold is None:
+        found = _instrumented_lag(evidence, cfg)
+        if found is not None:
+            value, interval, n = found
+            return LagEstimate(value, interval, INSTRUMENTED, 0, n, scale, cfg.lag_threshold * scale)
     steps = [threshold] if threshold is not None else [f * cfg.lag_threshold * scale for f in RELAX]
     found = None
     for limit in steps:
@@ -253,7 +394,7 @@ def motor_lag_estimate(evidence: Sequence[LagEvidence], cfg: SyncConfig, *,
     if found is None:
         whole = [_xcov(e.az, e.proxy, m) for e in evidence]
         value = _peak(np.sum([c / max(np.abs(c).max(), 1e-300) for c in whole], axis=0)) * step
-        return LagEstimate(value, (None, None), "whole-flight correlation", 0, 0, scale, steps[-1])
+        return LagEstimate(value, (None, None), WHOLE_FLIGHT, 0, 0, scale, steps[-1])
     limit, counts, units = found
     total = np.sum(units, axis=0)
     value = _peak(total) * step
@@ -301,8 +442,7 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
     report: dict[str, Any] = {"flight": name}
 
     # 1. clocks against the host
-    onboard = pd.concat([odom[["t_src", "t_recv"]], imu[["t_src", "t_recv"]]]).sort_values("t_src")
-    stm_drift, stm_off = clock_fit(onboard["t_src"].to_numpy(), onboard["t_recv"].to_numpy())
+    stm_drift, stm_off = onboard_clock(odom, imu)
     mc_drift, mc_off = clock_fit(mocap["t_src"].to_numpy(), mocap["t_recv"].to_numpy())
 
     def stm_to_host(t):
@@ -410,7 +550,7 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
     if own.events and abs(own.value - applied.value) > cfg.lag_tolerance:
         warnings.append(f"motors: this flight's own lag {own.value * 1e3:.1f} ms is "
                         f"{abs(own.value - applied.value) * 1e3:.1f} ms off the {applied.value * 1e3:.1f} ms applied")
-    if not applied.events:
+    if applied.method == WHOLE_FLIGHT:
         warnings.append("motors: no sharp thrust transient; the lag is the whole-flight correlation's, which the "
                         "closed loop biases towards zero")
     report["warnings"] = warnings
@@ -521,7 +661,9 @@ def sync_folder(extract_dir: Path, out_dir: Path, report_dir: Path, cfg: SyncCon
             if not f.exists():
                 raise DataError(f"{f}: missing (the {stream} stream was not extracted)")
             tables[d.name][stream] = pd.read_parquet(f)
-        evidence[d.name] = motor_lag_evidence(str(d), tables[d.name]["imu"], tables[d.name]["motors"], cfg)
+        t = tables[d.name]
+        evidence[d.name] = motor_lag_evidence(str(d), t["imu"], t["motors"], cfg, odom=t["odom"],
+                                              setpoint=setpoint_on_stm(t["setpoint"], *onboard_clock(t["odom"], t["imu"])))
     sessions: dict[str, list[str]] = {}
     for name in tables:
         sessions.setdefault(session_of(name), []).append(name)
@@ -554,11 +696,13 @@ def _sync_markdown(reports: list[dict]) -> str:
         "Estimated clock relations and lags per flight, and the share of samples each stream",
         "missed (lost packets, dropouts, missed motor readings; filled by the nearest measurement).",
         "",
-        "The motor lag applied is the session's: the peak of the cross-covariance of `a_z` with the",
-        "sum of squared rotor speeds around the sharp thrust transients of all the session's flights",
+        "The motor lag applied is the session's, with the host's setpoints as instruments: the lag whose",
+        "fit of `a_z`'s moments against the instrument (the thrust the setpoints ask for) by the recorded",
+        "sum of squared rotor speeds and the body-z velocity explains most, over all the session's flights",
         "(in closed loop the rotors answer the thrust disturbances a few tens of milliseconds late, which",
-        "pulls a whole-flight correlation towards zero lag). Its 95 % interval is a jackknife over the",
-        "flights; each flight's own estimate (over its own transients, interval over them) stands beside it.",
+        "pulls a plain correlation towards zero lag; the setpoints do not answer them). Its 95 % interval",
+        "is a jackknife over blocks (`preprocess.sync.lag_block`); `motor_lag_method` in `sync.json` says which estimator ran. Each",
+        "flight's own estimate (around its own sharp thrust transients, interval over them) stands beside it.",
         "",
         "| flight | samples | mocap→STM32 offset [s] | motor lag applied [ms] (95 % interval) | flight's own [ms] (95 % interval, transients) | STM32 drift [ppm] | missing (odom/imu/motors/mocap) | warnings |",
         "|---|---|---|---|---|---|---|---|",

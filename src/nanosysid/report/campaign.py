@@ -50,7 +50,7 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
                                       f"95 % {scale * d['p95']:.3g} {unit}")
 
         L += ["## Identification over the worlds", "",
-              "The sync step's motor lag (sharp thrust transients of the world's flights, one session) and the identify "
+              "The sync step's motor lag (the setpoints as instruments over the world's flights, one session) and the identify "
               "step (k_F by least squares on the training flights; k_M by instrumental variables on a yaw calibration "
               "flight) on each world's flights, against its truth. k_M counts as identifiable where the world's inertia "
               "is the nominal one.", "",

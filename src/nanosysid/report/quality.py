@@ -114,7 +114,7 @@ def _quality_markdown(q: dict, horizon: int) -> str:
         "Each processed flight (bags -> extract -> sync -> filter) against the noise-free truth at the",
         "same STM32 ticks. Targets: position RMS ≤ 5 mm, orientation (geodesic) RMS ≤ 0.01 rad, rotor",
         f"speed RMS ≤ 2 % of hover; lags within {q['motor_lag_tolerance_ms']:g} ms of the injected ones. The motor lag",
-        "applied is the session's (sharp thrust transients of all its flights, `reports/data/sync.md`);",
+        "applied is the session's (the setpoints as instruments over all its flights, `reports/data/sync.md`);",
         "a flight's own estimate, where it has sharp transients, must agree with it too: the stage fails",
         "otherwise.",
         "",

@@ -22,12 +22,12 @@ from typing import Mapping, Sequence
 
 from nanosysid.dataio import Flight
 from nanosysid.sim.oracle import Oracle
-from nanosysid.sim.simulator import FlightSpec, SimConfig, simulate
+from nanosysid.sim.simulator import FlightSpec, SimConfig, simulate, trajectory_reference
 from nanosysid.sim.world import DEFAULT_WORLD, EFFECTS, ExtraWrench, World
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["EFFECTS", "DEFAULT_WORLD", "World", "SimConfig", "FlightSpec", "flight_specs", "simulate_flight",
-           "simulate_flights", "oracle"]
+           "simulate_flights", "oracle", "trajectory_reference"]
 
 DATE = "20250601"
 

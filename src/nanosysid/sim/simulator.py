@@ -30,7 +30,7 @@ from nanosysid.sim.world import DEFAULT_WORLD, REALISATION_START, ExtraWrench, N
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["SimConfig", "NoiseConfig", "FlightSpec", "RawRecord", "simulate", "simulate_raw", "flights_from_record",
-           "flight_key", "TRUTH_COLUMNS", "collective_thrust_coefficient"]
+           "flight_key", "TRUTH_COLUMNS", "collective_thrust_coefficient", "trajectory_reference"]
 
 log = logging.getLogger(__name__)
 
@@ -88,11 +88,14 @@ class SimConfig:
         return cls(noise=noise, gains=gains, trajectories=traj or cls().trajectories, **cfg)
 
 
-def _trajectory_options(cfg: SimConfig, name: str) -> dict[str, Any]:
+def trajectory_reference(name: str, cfg: SimConfig | None = None) -> Reference:
+    """The reference a flight of trajectory ``name`` follows under ``cfg`` (its options, the random
+    trajectory's waypoint seed): what the host sends as setpoints."""
+    cfg = cfg or SimConfig()
     opts = {k: (tuple(v) if isinstance(v, (list, tuple)) else v) for k, v in cfg.trajectories.get(name, {}).items()}
     if name == "random":
         opts.setdefault("seed", cfg.waypoint_seed)
-    return opts
+    return make_reference(name, **opts)
 
 
 def flight_key(seed: int, trajectory: str, run: int) -> list[int]:
@@ -187,7 +190,7 @@ def simulate_raw(
     if cfg.preroll > -REALISATION_START - 5:
         raise ValueError(f"preroll: {cfg.preroll} s is longer than the {-REALISATION_START - 5:g} s the simulator allows")
     refs = [f.trajectory if isinstance(f.trajectory, Reference)
-            else make_reference(f.trajectory, **_trajectory_options(cfg, f.trajectory)) for f in flights]
+            else trajectory_reference(f.trajectory, cfg) for f in flights]
     keys = [flight_key(f.seed, r.name, f.run) for f, r in zip(flights, refs)]
     rngs = [np.random.default_rng(k) for k in keys]
     worlds = [f.world for f in flights]
