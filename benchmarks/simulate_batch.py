@@ -6,8 +6,10 @@ one flight, measured in the same run, show how little a flight costs in a batch.
 flight is the first draw with every simulator effect switched on and a user effect, so that it
 runs every code path a batch of many worlds runs.
 
-The product's own settings throughout (its thread count included): once on an idle machine and
-once beside a process that keeps one core busy, as on a shared workstation or CI runner.
+The product's own settings throughout (its thread count and its compiled step included): once on
+an idle machine and once beside a process that keeps one core busy, as on a shared workstation or
+CI runner. Each batch size is a compiled step of its own: every size runs once before the timed
+runs, so that the times are those of a compiled step, not of compiling it.
 """
 
 from __future__ import annotations
@@ -45,7 +47,8 @@ def main() -> dict[str, float]:
                             name=f"chirp_w{w.index}_run1") for w in draws]
     every = dataclasses.replace(specs[0], effects={e: 1.0 for e in sim.EFFECTS},
                                 extra_wrench=functools.partial(campaign.thrust_sag, s=1.0, k_f=vehicle.k_f))
-    sim.simulate_flights([every], cfg=cfg, progress=False)  # warm-up: imports, first allocations
+    for n in SIZES:  # warm-up: imports, first allocations, each size's compiled step
+        sim.simulate_flights([every] if n == 1 else specs[:n], cfg=cfg, progress=False)
     out = _times(every, specs, cfg, "")
     busy = subprocess.Popen([sys.executable, "-c", "while True: pass"])  # one core taken
     try:

@@ -1,33 +1,37 @@
-"""Time to simulate the default dataset (15 flights, default world) as one batch.
+"""Time to simulate the default dataset (15 flights and the 2 yaw sweeps, default world) as one batch, with the step compiled (the product's setting) against the same step run eagerly.
 
-Also times one Melon flight alone, in the same run: the batch advances all flights together,
-so 15 flights cost little more than the longest one.
+The compiled batch is timed twice in the same process: the first run includes building the
+step (inductor's compile, or reading its disk cache when an earlier run compiled it), the second
+is what every later batch of this size and world costs. The eager step (``compile: false``) is
+the reference, run once.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 from nanosysid import sim
+from nanosysid.settings import defaults
 
-RUNS = {"square": 4, "random": 4, "chirp": 4, "melon": 3}
+RUNS = defaults("sim/default.yaml", "runs")
+
+
+def _time(cfg: sim.SimConfig) -> tuple[float, int]:
+    t0 = time.perf_counter()
+    flights = sim.simulate_flights(RUNS, cfg=cfg, progress=False)
+    return time.perf_counter() - t0, len(flights)
 
 
 def main() -> dict[str, float]:
-    t0 = time.perf_counter()
-    sim.simulate_flight("melon", 1)
-    t_one = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    flights = sim.simulate_flights(RUNS, progress=False)
-    t_all = time.perf_counter() - t0
-    samples = sum(len(f) for f in flights)
-    # one at a time, each flight would cost in proportion to its length
-    sequential = t_one * samples / len(flights[-1])
-    print(f"one Melon flight (65 s of flight):      {t_one:.1f} s")
-    print(f"all {len(flights)} flights as one batch ({samples} samples): {t_all:.1f} s "
-          f"({t_all / t_one:.2f}x one flight; one at a time about {sequential:.0f} s)")
-    return {"one_flight_s": t_one, "batch_s": t_all, "flights": len(flights), "batch_over_one": t_all / t_one,
-            "sequential_estimate_s": sequential}
+    cfg = sim.SimConfig()
+    first, n = _time(cfg)
+    again, _ = _time(cfg)
+    eager, _ = _time(dataclasses.replace(cfg, compile=False))
+    print(f"{n} flights, compiled step: {first:.1f} s the first time (with the compile), {again:.1f} s again")
+    print(f"{n} flights, eager step:    {eager:.1f} s ({eager / again:.1f}x the compiled one)")
+    return {"flights": n, "compiled_first_s": first, "compiled_s": again, "eager_s": eager,
+            "eager_over_compiled": eager / again}
 
 
 if __name__ == "__main__":

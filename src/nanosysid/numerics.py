@@ -41,6 +41,8 @@ PINNED: dict[str, str] = {
     "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
     # OpenBLAS under numpy and scipy: the Nehalem kernels (SSE4.2), which every x86-64-v2 CPU runs
     "OPENBLAS_CORETYPE": "Nehalem",
+    # inductor's C++ (the simulator's compiled step): the x86-64-v2 instruction set, not the host's
+    "TORCHINDUCTOR_CPP_MARCH": "x86-64-v2",
 }
 
 

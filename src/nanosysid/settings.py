@@ -60,6 +60,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("sim.flight.*_rate", POSITIVE), ("sim.flight.motor_tau", POSITIVE), ("sim.flight.noise.*", NONNEG),
     ("sim.flight.omega_min", POSITIVE), ("sim.flight.omega_max", POSITIVE), ("sim.flight.preroll", NONNEG),
     ("sim.flight.postroll", NONNEG), ("sim.flight.initial_offset", NONNEG), ("sim.flight.feedforward", SHARE),
+    ("sim.flight.compile", FLAG),
     ("sim.flight.gains.*", NUMBER),
     ("sim.flight.trajectories.*.center", NUMBER), ("sim.flight.trajectories.*.n_points", COUNT),
     ("sim.flight.trajectories.*", POSITIVE),

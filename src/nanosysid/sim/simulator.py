@@ -9,9 +9,11 @@ integrators settle, and is cut to its trajectory's duration.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import logging
-from dataclasses import dataclass, field
+import warnings
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -74,6 +76,7 @@ class SimConfig:
     initial_offset: float
     waypoint_seed: int
     feedforward: float
+    compile: bool
     noise: NoiseConfig = field(default_factory=NoiseConfig)
     trajectories: Mapping[str, Mapping[str, Any]] = field(
         default_factory=lambda: defaults("sim/default.yaml", "flight", "trajectories"))
@@ -187,6 +190,30 @@ def simulate_raw(
     vehicle = vehicle or Vehicle()
     cfg = cfg or SimConfig()
     B = len(flights)
+    size = _compiled_batch(B) if cfg.compile else B
+    if size > B:
+        # a compiled step serves one batch size: pad to the next of a few sizes with copies of
+        # the last flight (a flight's bytes do not depend on its batch), then drop them
+        raw = _simulate_raw([*flights, *[flights[-1]] * (size - B)], vehicle, cfg, date, progress, B)
+        return _first(raw, B)
+    return _simulate_raw(flights, vehicle, cfg, date, progress, B)
+
+
+def _compiled_batch(n: int) -> int:
+    """The batch size a compiled simulation of ``n`` flights runs at: 8, 16, 32 or 64, then the
+    next multiple of 64 (the step's time hardly depends on it; each size is a compile)."""
+    return max(8, 1 << (n - 1).bit_length()) if n <= 64 else -(-n // 64) * 64
+
+
+def _first(raw: RawRecord, n: int) -> RawRecord:
+    """The record of the first ``n`` flights of ``raw``."""
+    per_flight = {f.name: getattr(raw, f.name)[:n] for f in fields(raw) if f.name != "t"}
+    return replace(raw, **per_flight)
+
+
+def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfig, date: str, progress: bool,
+                  shown: int) -> RawRecord:
+    B = len(flights)
     if cfg.preroll > -REALISATION_START - 5:
         raise ValueError(f"preroll: {cfg.preroll} s is longer than the {-REALISATION_START - 5:g} s the simulator allows")
     refs = [f.trajectory if isinstance(f.trajectory, Reference)
@@ -201,7 +228,7 @@ def simulate_raw(
     n_steps = n_pre + round((max(r.duration for r in refs) + cfg.postroll) * cfg.physics_rate) + 1
     t_end = (n_steps - 1) * dt - cfg.preroll
     nature = Nature(worlds, vehicle, disturbances=[w.disturbance(k, t_end + 1.0) for w, k in zip(worlds, keys)],
-                    extra=[f.extra_wrench for f in flights])
+                    extra=[f.extra_wrench for f in flights], complete=cfg.compile)
 
     # setpoints at every control instant, (B, Nc, 3) each
     t_ctrl = np.arange(0, n_steps, ctrl_every) * dt - cfg.preroll
@@ -209,7 +236,7 @@ def simulate_raw(
     p_ref, v_ref, a_ref = (torch.from_numpy(np.stack([x[i] for x in pva])) for i in range(3))
     v_ref, a_ref = v_ref * cfg.feedforward, a_ref * cfg.feedforward
     yaw_ref = torch.from_numpy(np.stack([r.yaw(t_ctrl) for r in refs]))  # (B, Nc)
-    yaws = yaw_ref.any().item()
+    yaws = cfg.compile or yaw_ref.any().item()  # a yaw of zero heads as None does: the compiled step takes one
 
     x = torch.zeros(B, 17, dtype=torch.float64)
     offsets = np.stack([rng.normal(scale=cfg.initial_offset, size=3) for rng in rngs])
@@ -222,26 +249,26 @@ def simulate_raw(
     if nature.inertia is not None:
         params["inertia"] = nature.inertia
     base = functools.partial(dynamics.quad_dynamics, **params)
-
-    def deriv(z: torch.Tensor, cmd: torch.Tensor, t: float) -> torch.Tensor:
-        om = z[:, 13:]
-        om_dot = (cmd - om) / cfg.motor_tau
-        force, torque = nature.wrench(t, z[:, :13], om, om_dot) if nature.active else (None, None)
-        return torch.cat((base(z[:, :13], om, force_body=force, torque_body=torque), om_dot), dim=-1)
+    parts = dict(nature=nature, base=base, ctrl=ctrl, motor_tau=cfg.motor_tau, dt=dt)
+    advance = _compiled_advance() if cfg.compile else _advance
 
     states, cmds = [], []  # state (17) and rotor command (4) at every step
-    bar = tqdm(total=n_steps, desc=f"simulate {B} flights", unit="step", unit_scale=True,
+    bar = tqdm(total=n_steps, desc=f"simulate {shown} flights", unit="step", unit_scale=True,
                disable=not progress, mininterval=1.0)
-    with torch.inference_mode():
+    with torch.inference_mode(), _recompiles(), warnings.catch_warnings():
+        # the compiled step reads the mixer through its cache of constants: traced once, harmless
+        warnings.filterwarnings("ignore", message=".*lru_cache.*", category=UserWarning)
+        # inputs made here, so that the step sees inference tensors from the first call on
+        x, cmd = x.clone(), torch.zeros(B, 4, dtype=torch.float64)
+        ctl = torch.cat((cstate.i_pos, cstate.i_att, cstate.prev_ew), -1)
+        t_steps = torch.from_numpy(np.arange(n_steps) * dt - cfg.preroll).unsqueeze(-1).expand(n_steps, B)
         for k in range(n_steps):
-            if k % ctrl_every == 0:
-                j = k // ctrl_every
-                cmd, cstate = ctrl(x[:, :13], p_ref[:, j], v_ref[:, j], a_ref[:, j], cstate,
-                                   yaw_ref[:, j] if yaws else None)
+            control = k % ctrl_every == 0
+            j = k // ctrl_every
             states.append(x)
+            x, cmd, ctl = advance(x, cmd, ctl, p_ref[:, j], v_ref[:, j], a_ref[:, j],
+                                  yaw_ref[:, j] if yaws else None, t_steps[k], control=control, **parts)
             cmds.append(cmd)
-            x = dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, normalise=_normalise_in_place,
-                                   t=k * dt - cfg.preroll)
             if k % 1000 == 999:
                 bar.update(1000)
     bar.update(n_steps - bar.n)
@@ -278,10 +305,44 @@ def simulate_raw(
     )
 
 
-def _normalise_in_place(x: torch.Tensor) -> torch.Tensor:
-    # the loop is bound by per-call overhead: one in-place op instead of a concatenation
-    x[:, 6:10] = so3.quat_normalize(x[:, 6:10])
-    return x
+def _advance(x: torch.Tensor, cmd: torch.Tensor, ctl: torch.Tensor, p_ref: torch.Tensor,
+             v_ref: torch.Tensor, a_ref: torch.Tensor, yaw_ref: torch.Tensor | None, t: torch.Tensor, *,
+             control: bool, nature: Nature, base, ctrl: Mellinger, motor_tau: float, dt: float):
+    """One physics step of the batch ``(B, 17)`` (rigid body and rotor speeds), the controller run
+    first at a control instant; ``t (B,)`` is the step's start (s). Returns the next state, the
+    rotor command held over the step and the controller's state ``(B, 9)`` (``i_pos``, ``i_att``,
+    ``prev_ew``: one tensor, whose layout stays the same from step to step)."""
+    if control:
+        cmd, cs = ctrl(x[:, :13], p_ref, v_ref, a_ref, ControllerState(*ctl.split(3, dim=-1)), yaw_ref)
+        ctl = torch.cat((cs.i_pos, cs.i_att, cs.prev_ew), -1)
+
+    def deriv(z: torch.Tensor, u: torch.Tensor, tk: torch.Tensor) -> torch.Tensor:
+        om = z[:, 13:]
+        om_dot = (u - om) / motor_tau
+        force, torque = nature.wrench(tk, z[:, :13], om, om_dot) if nature.active else (None, None)
+        return torch.cat((base(z[:, :13], om, force_body=force, torque_body=torque), om_dot), dim=-1)
+
+    return dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, t=t), cmd, ctl
+
+
+@functools.cache
+def _compiled_advance():
+    # inductor fuses the step's few hundred tensor operations into a handful of C++ loops; with
+    # ATEN_CPU_CAPABILITY=default (numerics.pin) they are scalar code, compiled without
+    # floating-point contraction or unsafe math (inductor's defaults) for the pinned x86-64-v2
+    # (TORCHINDUCTOR_CPP_MARCH): the same bytes on every x86 machine, whatever the batch
+    return torch.compile(_advance, dynamic=False)
+
+
+@contextlib.contextmanager
+def _recompiles():
+    # each world-effect set, batch size and user wrench is a graph of its own: more of them than
+    # torch's default 8 must compile, never fall back to the eager step (other bytes)
+    import torch._dynamo.config as dynamo_config
+
+    with dynamo_config.patch(recompile_limit=max(dynamo_config.recompile_limit, 256),
+                             fail_on_recompile_limit_hit=True):
+        yield
 
 
 def simulate(

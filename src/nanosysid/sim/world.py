@@ -419,10 +419,15 @@ class World:
         return Nature([self], vehicle, dtype=x.dtype).wrench(None, x, omega, omega_dot)
 
 
-def _extra_groups(extra: Sequence[ExtraWrench | None], dtype) -> list[tuple[ExtraWrench, Tensor, dict[str, Tensor]]]:
+def _extra_groups(extra: Sequence[ExtraWrench | None], dtype,
+                  complete: bool = False) -> list[tuple[ExtraWrench, Tensor, dict[str, Tensor]]]:
     """The flights' user-supplied wrenches as calls: one per function, and one per family of
     ``functools.partial`` s of one function with numeric keywords (the keywords stacked per
-    flight), so that a thousand worlds of one effect at a thousand strengths cost one call."""
+    flight), so that a thousand worlds of one effect at a thousand strengths cost one call.
+
+    Each call comes with its flights: their indices, or with ``complete`` a mask ``(B,)`` (the
+    call then runs on every flight, the others with the first one's keywords, and its result
+    counts where the mask is set: shapes that do not depend on which flights have it)."""
     groups: dict[tuple, list[int]] = {}
     for i, fn in enumerate(extra):
         if fn is None:
@@ -432,8 +437,17 @@ def _extra_groups(extra: Sequence[ExtraWrench | None], dtype) -> list[tuple[Extr
                 isinstance(v, (int, float)) and not isinstance(v, bool) for v in fn.keywords.values()):
             key = (fn.func, tuple(sorted(fn.keywords)))
         groups.setdefault(key, []).append(i)
-    return [(fn, torch.tensor(rows), {k: torch.tensor([extra[i].keywords[k] for i in rows], dtype=dtype) for k in names})
-            for (fn, names), rows in groups.items()]
+    out = []
+    for (fn, names), rows in groups.items():
+        if complete:
+            mask = torch.zeros(len(extra), dtype=torch.bool)
+            mask[rows] = True
+            of = [i if mask[i] else rows[0] for i in range(len(extra))]
+            out.append((fn, mask, {k: torch.tensor([extra[i].keywords[k] for i in of], dtype=dtype) for k in names}))
+        else:
+            out.append((fn, torch.tensor(rows),
+                        {k: torch.tensor([extra[i].keywords[k] for i in rows], dtype=dtype) for k in names}))
+    return out
 
 
 class Nature:
@@ -448,10 +462,14 @@ class Nature:
             (force_B, torque_B)`` in SI units, or None. Flights whose functions are
             ``functools.partial(f, k=number, ...)`` of one ``f`` are evaluated in one call, each
             keyword a tensor ``(flights, 1, ...)`` of the flights' values.
+        complete: Every registered effect computed, at strength 0 where a world has it off (its
+            wrench then exactly zero), and the body's inertia always a tensor: the same
+            operations whatever the worlds, so that one compiled step serves them all.
     """
 
     def __init__(self, worlds: Sequence[World], vehicle: Vehicle, *, disturbances: Sequence[np.ndarray | None] = (),
-                 extra: Sequence[ExtraWrench | None] | ExtraWrench | None = None, dtype=torch.float64) -> None:
+                 extra: Sequence[ExtraWrench | None] | ExtraWrench | None = None, dtype=torch.float64,
+                 complete: bool = False) -> None:
         self.B = len(worlds)
         self.vehicle = vehicle
 
@@ -459,7 +477,7 @@ class Nature:
             return torch.tensor([list(v) for v in values], dtype=dtype)
 
         def on(e: WorldEffect) -> bool:
-            return any(w.s(e.name) for w in worlds)
+            return complete or any(w.s(e.name) for w in worlds)
 
         active = [e for e in REGISTRY.values() if on(e)]
         s = {e.name: torch.tensor([[w.s(e.name)] for w in worlds], dtype=dtype) for e in active}
@@ -481,11 +499,15 @@ class Nature:
         self.channels = [(e, cols) for e, cols in _channels() if on(e)]
         self.mixer_t = M.T
         self.inertia = None
-        if any(w.s("inertia_offset") for w in worlds):
+        if complete or any(w.s("inertia_offset") for w in worlds):
             self.inertia = stack(w.inertia(vehicle) for w in worlds)  # (B, 3)
         self.table = None
+        if complete and all(d is None for d in disturbances):
+            disturbances = [np.zeros((2, _channels()[-1][1].stop))] if _channels() else []
         if any(d is not None for d in disturbances):
             n, k = max(d.shape for d in disturbances if d is not None)
+            if complete:  # a few lengths, not one per flight duration (the last value is held)
+                n = max(4096, 1 << (n - 1).bit_length())
             table = np.zeros((self.B, n, k))
             for i, d in enumerate(disturbances):
                 if d is not None:
@@ -496,7 +518,7 @@ class Nature:
             self.extra = extra
         else:
             self.extra = list(extra) if any(fn is not None for fn in extra) else None
-            self.groups = _extra_groups(self.extra, dtype) if self.extra is not None else []
+            self.groups = _extra_groups(self.extra, dtype, complete) if self.extra is not None else []
         self.active = bool(self.terms) or self.per_omega2 is not None or self.per_omega_rate is not None \
             or self.table is not None or self.extra is not None
 
@@ -550,6 +572,11 @@ class Nature:
         per_flight = (-1,) + (1,) * (x.dim() - 2)
         for fn, rows, keywords in self.groups:
             kw = {k: v.view(per_flight) for k, v in keywords.items()}
+            if rows.dtype == torch.bool:  # every flight computed, those of the call kept
+                f, tq = fn(tt, x, omega, omega_dot, **kw)
+                mask = rows.view(*per_flight, 1)
+                force, torque = force + torch.where(mask, f, 0.0), torque + torch.where(mask, tq, 0.0)
+                continue
             f, tq = fn(tt[rows], x[rows], omega[rows], omega_dot[rows], **kw)
             force.index_add_(0, rows, f)
             torque.index_add_(0, rows, tq)
