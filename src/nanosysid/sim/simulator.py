@@ -24,6 +24,7 @@ from tqdm.auto import tqdm
 
 from nanosysid import dynamics, so3
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, OUTPUT_COLUMNS, Flight
+from nanosysid.errors import ConfigError
 from nanosysid.numerics import LOOP_THREADS, threads
 from nanosysid.settings import configured, defaults
 from nanosysid.sim.controller import ControllerState, Mellinger, MellingerGains
@@ -331,6 +332,13 @@ def _compiled_advance():
     # ATEN_CPU_CAPABILITY=default (numerics.pin) they are scalar code, compiled without
     # floating-point contraction or unsafe math (inductor's defaults) for the pinned x86-64-v2
     # (TORCHINDUCTOR_CPP_MARCH): the same bytes on every x86 machine, whatever the batch
+    from torch._inductor.cpp_builder import get_cpp_compiler
+
+    try:
+        get_cpp_compiler()  # inductor's own search: $CXX, then g++, clang++
+    except Exception as e:
+        raise ConfigError(f"sim.flight.compile: the compiled step needs a C++ compiler ({e}); install g++, or set "
+                          "sim.flight.compile=false to run the step eagerly") from None
     return torch.compile(_advance, dynamic=False)
 
 
