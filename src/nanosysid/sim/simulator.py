@@ -13,7 +13,7 @@ import contextlib
 import functools
 import logging
 import warnings
-from dataclasses import dataclass, field, fields, replace
+from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -191,13 +191,12 @@ def simulate_raw(
     vehicle = vehicle or Vehicle()
     cfg = cfg or SimConfig()
     B = len(flights)
+    if not B:
+        raise ValueError("simulate: no flight")
+    # a compiled step serves one batch size: pad to the next of a few sizes with copies of the
+    # last flight (a flight's bytes do not depend on its batch), then drop them
     size = _compiled_batch(B) if cfg.compile else B
-    if size > B:
-        # a compiled step serves one batch size: pad to the next of a few sizes with copies of
-        # the last flight (a flight's bytes do not depend on its batch), then drop them
-        raw = _simulate_raw([*flights, *[flights[-1]] * (size - B)], vehicle, cfg, date, progress, B)
-        return _first(raw, B)
-    return _simulate_raw(flights, vehicle, cfg, date, progress, B)
+    return _simulate_raw([*flights, *[flights[-1]] * (size - B)], vehicle, cfg, date, progress, B)
 
 
 def _compiled_batch(n: int) -> int:
@@ -206,14 +205,9 @@ def _compiled_batch(n: int) -> int:
     return max(8, 1 << (n - 1).bit_length()) if n <= 64 else -(-n // 64) * 64
 
 
-def _first(raw: RawRecord, n: int) -> RawRecord:
-    """The record of the first ``n`` flights of ``raw``."""
-    per_flight = {f.name: getattr(raw, f.name)[:n] for f in fields(raw) if f.name != "t"}
-    return replace(raw, **per_flight)
-
-
 def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfig, date: str, progress: bool,
                   shown: int) -> RawRecord:
+    """The batch ``flights`` simulated; the record of its first ``shown``."""
     B = len(flights)
     if cfg.preroll > -REALISATION_START - 5:
         raise ValueError(f"preroll: {cfg.preroll} s is longer than the {-REALISATION_START - 5:g} s the simulator allows")
@@ -253,7 +247,7 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
     parts = dict(nature=nature, base=base, ctrl=ctrl, motor_tau=cfg.motor_tau, dt=dt)
     advance = _compiled_advance() if cfg.compile else _advance
 
-    states, cmds = [], []  # state (17) and rotor command (4) at every step
+    states, cmds, wrenches = [], [], []  # state (17), rotor command (4) and the world's wrench (6) at every step
     bar = tqdm(total=n_steps, desc=f"simulate {shown} flights", unit="step", unit_scale=True,
                disable=not progress, mininterval=1.0)
     with torch.inference_mode(), _recompiles(), warnings.catch_warnings():
@@ -267,42 +261,42 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
             control = k % ctrl_every == 0
             j = k // ctrl_every
             states.append(x)
-            x, cmd, ctl = advance(x, cmd, ctl, p_ref[:, j], v_ref[:, j], a_ref[:, j],
-                                  yaw_ref[:, j] if yaws else None, t_steps[k], control=control, **parts)
+            x, cmd, ctl, wrench = advance(x, cmd, ctl, p_ref[:, j], v_ref[:, j], a_ref[:, j],
+                                          yaw_ref[:, j] if yaws else None, t_steps[k], control=control, **parts)
             cmds.append(cmd)
+            wrenches.append(wrench)
             if k % 1000 == 999:
                 bar.update(1000)
     bar.update(n_steps - bar.n)
     bar.close()
-    rec = torch.cat((torch.stack(states, 1), torch.stack(cmds, 1)), -1)
+    B = shown  # the padding's copies are dropped
+    rec = torch.cat((torch.stack(states, 1), torch.stack(cmds, 1)), -1)[:B]
     if not torch.isfinite(rec).all():
         raise RuntimeError("simulation diverged (non-finite state); check the controller gains and motor model")
 
-    # forces and torques of the whole record at once, with the same functions as the loop
+    # body force and torque: the rotors' of the whole record at once, the world's as the loop had it
     t = np.arange(n_steps) * dt - cfg.preroll
     xs, om, cmd_rec = rec[..., :13], rec[..., 13:17], rec[..., 17:]
     om_dot = (cmd_rec - om) / cfg.motor_tau
     thrust, tau = dynamics.rotor_wrench(om, k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm)
-    f_b = F.pad(thrust.unsqueeze(-1), (2, 0))
-    if nature.active:
-        force, torque = nature.wrench(torch.from_numpy(t).expand(B, n_steps), xs, om, om_dot)
-        f_b, tau = f_b + force, tau + torque
-    p_hold = p_ref.repeat_interleave(ctrl_every, dim=1)[:, :n_steps]
+    world = torch.stack(wrenches, 1)[:B]
+    f_b, tau = F.pad(thrust.unsqueeze(-1), (2, 0)) + world[..., :3], tau + world[..., 3:]
+    p_hold = p_ref[:B].repeat_interleave(ctrl_every, dim=1)[:, :n_steps]
     return RawRecord(
-        names=[f.flight_name(date) for f in flights],
-        trajectories=[r.name for r in refs],
-        runs=[f.run for f in flights],
-        seeds=[f.seed for f in flights],
-        worlds=worlds,
+        names=[f.flight_name(date) for f in flights[:B]],
+        trajectories=[r.name for r in refs[:B]],
+        runs=[f.run for f in flights[:B]],
+        seeds=[f.seed for f in flights[:B]],
+        worlds=worlds[:B],
         t=t,
         x=xs.numpy(),
         omega=om.numpy(),
         omega_dot=om_dot.numpy(),
         wrench=torch.cat((f_b, tau), -1).numpy(),
         p_ref=p_hold.numpy(),
-        yaw_ref=yaw_ref.repeat_interleave(ctrl_every, dim=1)[:, :n_steps].numpy(),
-        durations=[r.duration for r in refs],
-        rngs=rngs,
+        yaw_ref=yaw_ref[:B].repeat_interleave(ctrl_every, dim=1)[:, :n_steps].numpy(),
+        durations=[r.duration for r in refs[:B]],
+        rngs=rngs[:B],
     )
 
 
@@ -311,19 +305,26 @@ def _advance(x: torch.Tensor, cmd: torch.Tensor, ctl: torch.Tensor, p_ref: torch
              control: bool, nature: Nature, base, ctrl: Mellinger, motor_tau: float, dt: float):
     """One physics step of the batch ``(B, 17)`` (rigid body and rotor speeds), the controller run
     first at a control instant; ``t (B,)`` is the step's start (s). Returns the next state, the
-    rotor command held over the step and the controller's state ``(B, 9)`` (``i_pos``, ``i_att``,
-    ``prev_ew``: one tensor, whose layout stays the same from step to step)."""
+    rotor command held over the step, the controller's state ``(B, 9)`` (``i_pos``, ``i_att``,
+    ``prev_ew``: one tensor, whose layout stays the same from step to step), and the world's
+    body force and torque ``(B, 6)`` at the step's start."""
     if control:
         cmd, cs = ctrl(x[:, :13], p_ref, v_ref, a_ref, ControllerState(*ctl.split(3, dim=-1)), yaw_ref)
         ctl = torch.cat((cs.i_pos, cs.i_att, cs.prev_ew), -1)
 
-    def deriv(z: torch.Tensor, u: torch.Tensor, tk: torch.Tensor) -> torch.Tensor:
+    def world(z: torch.Tensor, u: torch.Tensor, tk: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         om = z[:, 13:]
         om_dot = (u - om) / motor_tau
-        force, torque = nature.wrench(tk, z[:, :13], om, om_dot) if nature.active else (None, None)
-        return torch.cat((base(z[:, :13], om, force_body=force, torque_body=torque), om_dot), dim=-1)
+        if not nature.active:
+            return torch.zeros_like(z[:, :3]), torch.zeros_like(z[:, :3]), om_dot
+        return (*nature.wrench(tk, z[:, :13], om, om_dot), om_dot)
 
-    return dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, t=t), cmd, ctl
+    def deriv(z: torch.Tensor, u: torch.Tensor, tk: torch.Tensor) -> torch.Tensor:
+        force, torque, om_dot = world(z, u, tk)
+        return torch.cat((base(z[:, :13], z[:, 13:], force_body=force, torque_body=torque), om_dot), dim=-1)
+
+    force, torque, _ = world(x, cmd, t)  # the first stage's: compiled, the two are one computation
+    return dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, t=t), cmd, ctl, torch.cat((force, torque), -1)
 
 
 @functools.cache
