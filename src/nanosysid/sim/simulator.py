@@ -312,19 +312,19 @@ def _advance(x: torch.Tensor, cmd: torch.Tensor, ctl: torch.Tensor, p_ref: torch
         cmd, cs = ctrl(x[:, :13], p_ref, v_ref, a_ref, ControllerState(*ctl.split(3, dim=-1)), yaw_ref)
         ctl = torch.cat((cs.i_pos, cs.i_att, cs.prev_ew), -1)
 
-    def world(z: torch.Tensor, u: torch.Tensor, tk: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        om = z[:, 13:]
-        om_dot = (u - om) / motor_tau
-        if not nature.active:
-            return torch.zeros_like(z[:, :3]), torch.zeros_like(z[:, :3]), om_dot
-        return (*nature.wrench(tk, z[:, :13], om, om_dot), om_dot)
+    stages = []  # the world's wrench at each RK4 stage; the first is the step's start
 
     def deriv(z: torch.Tensor, u: torch.Tensor, tk: torch.Tensor) -> torch.Tensor:
-        force, torque, om_dot = world(z, u, tk)
-        return torch.cat((base(z[:, :13], z[:, 13:], force_body=force, torque_body=torque), om_dot), dim=-1)
+        om = z[:, 13:]
+        om_dot = (u - om) / motor_tau
+        if nature.active:
+            force, torque = nature.wrench(tk, z[:, :13], om, om_dot)
+        else:
+            force, torque = torch.zeros_like(z[:, :3]), torch.zeros_like(z[:, :3])
+        stages.append(torch.cat((force, torque), -1))
+        return torch.cat((base(z[:, :13], om, force_body=force, torque_body=torque), om_dot), dim=-1)
 
-    force, torque, _ = world(x, cmd, t)  # the first stage's: compiled, the two are one computation
-    return dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, t=t), cmd, ctl, torch.cat((force, torque), -1)
+    return dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, t=t), cmd, ctl, stages[0]
 
 
 @functools.cache

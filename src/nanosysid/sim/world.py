@@ -442,7 +442,7 @@ def _extra_groups(extra: Sequence[ExtraWrench | None], dtype,
         if complete:
             mask = torch.zeros(len(extra), dtype=torch.bool)
             mask[rows] = True
-            of = [i if mask[i] else rows[0] for i in range(len(extra))]
+            of = [i if i in rows else rows[0] for i in range(len(extra))]
             out.append((fn, mask, {k: torch.tensor([extra[i].keywords[k] for i in of], dtype=dtype) for k in names}))
         else:
             out.append((fn, torch.tensor(rows),
