@@ -53,9 +53,12 @@ params: $(STAMP)
 deps: $(STAMP)
 	$(BIN)/python -m nanosysid.depgraph write
 
-# each stage's time into reports/repro.json, and from there into the README's run times
+# every stage of dvc.yaml, REPRO_JOBS at a time where the DAG allows (src/nanosysid/repro.py: the
+# same outputs and dvc.lock as `dvc repro`), each stage's time into reports/repro.json, and from
+# there into the README's run times
+REPRO_JOBS ?= 2
 repro: params toolchain
-	env $(PINNED) $(BIN)/python -m nanosysid.report.runtimes --out reports/repro.json -- $(BIN)/dvc repro
+	env $(PINNED) $(BIN)/python -m nanosysid.repro --jobs $(REPRO_JOBS) --out reports/repro.json
 	$(BIN)/python -m nanosysid.report.readme --sections results physics bench
 
 # every benchmark's figures into reports/bench.json, and from there into the README;

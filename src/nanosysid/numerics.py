@@ -21,7 +21,7 @@ import platform
 import sys
 from typing import Iterator
 
-__all__ = ["PINNED", "THREADS", "LOOP_THREADS", "pin", "pinned_environment", "threads"]
+__all__ = ["PINNED", "THREADS", "LOOP_THREADS", "pin", "pinned_environment", "threads", "compiled", "quiet_tracing"]
 
 # Threads split sums (a matrix product's, a reduction's) into partial sums whose order sets the
 # last bits: the count is fixed, whatever the machine's cores; NANOSYSID_THREADS changes it (and
@@ -68,6 +68,44 @@ def threads(n: int) -> Iterator[None]:
         yield
     finally:
         torch.set_num_threads(before)
+
+
+def compiled(fn, *, setting: str, dynamic: bool = False):
+    """``torch.compile(fn)`` into the pinned C++ code.
+
+    Inductor fuses a function's tensor operations into a few C++ loops. With
+    ``ATEN_CPU_CAPABILITY=default`` they are scalar code, compiled for the pinned x86-64-v2
+    (``TORCHINDUCTOR_CPP_MARCH``) without floating-point contraction or unsafe maths (inductor's
+    defaults): the same bytes on every x86 machine. They are not the eager function's bytes:
+    the two differ by rounding.
+
+    Raises:
+        ConfigError: no C++ compiler; the message names ``setting`` (the flag that turns the
+            compiled path off).
+    """
+    import torch
+    from torch._inductor.cpp_builder import get_cpp_compiler
+
+    from nanosysid.errors import ConfigError
+
+    try:
+        get_cpp_compiler()  # inductor's own search: $CXX, then g++, clang++
+    except Exception as e:
+        raise ConfigError(f"{setting}: the compiled code needs a C++ compiler ({e}); install g++, or set "
+                          f"{setting}=false to run it eagerly") from None
+    return torch.compile(fn, dynamic=dynamic)
+
+
+@contextlib.contextmanager
+def quiet_tracing() -> Iterator[None]:
+    """Inside the block, dynamo's warning that it traces through a ``functools`` cache is not
+    shown: the compiled code reads its constants (the mixer, gravity) through one, which is
+    traced once and harmless."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*lru_cache.*", category=UserWarning)
+        yield
 
 
 def pinned_environment() -> dict[str, str]:

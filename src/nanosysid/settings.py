@@ -93,7 +93,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("models.oracle.effects.*", NONNEG), ("models.*.rotor_delay", NONNEG_OR_NULL),
     ("models.*.network.*", FREE),
     ("models.*.train.horizon", COUNT), ("models.*.train.stride", COUNT), ("models.*.train.batch_size", COUNT),
-    ("models.*.train.epochs", COUNT), ("models.*.train.patience", NONNEG_COUNT),
+    ("models.*.train.epochs", COUNT), ("models.*.train.patience", NONNEG_COUNT), ("models.*.train.compile", FLAG),
     ("models.*.train.optimizer.lr", POSITIVE), ("models.*.train.val_runs", COUNT),
     ("models.*.train.optimizer.*", FREE), ("models.*.train.scheduler", FREE), ("models.*.train.scheduler.*", FREE),
     ("learned", TEXT), ("trainer.devices", COUNT_OR_AUTO),

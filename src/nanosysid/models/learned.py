@@ -30,6 +30,7 @@ from nanosysid.dataio import atomic_file
 from nanosysid.errors import ConfigError, DataError
 from nanosysid.models.components import network_class
 from nanosysid.models.physics import PhysicsStep
+from nanosysid.numerics import compiled
 from nanosysid.rollout import as_tensor
 from nanosysid.vehicle import Vehicle
 
@@ -64,6 +65,7 @@ class SequenceModel(nn.Module):
         super().__init__()
         self.network = network
         self.physics = physics
+        self._compiled_base = None  # compile_base()
         for name, n in (("y_mean", 12), ("y_std", 12), ("u_mean", 4), ("u_std", 4), ("d_std", 12)):
             self.register_buffer(name, torch.zeros(n) if "mean" in name else torch.ones(n))
 
@@ -82,11 +84,23 @@ class SequenceModel(nn.Module):
         """The network's recurrent state from the initial output (None for feed-forward ones)."""
         return self.network.init_state((yt0 - self.y_mean) / self.y_std)
 
+    def base(self, yt: Tensor, u: Tensor) -> Tensor:
+        """What the network's increment is added to: ``ỹ_k (B, 12)`` itself, or with a physics
+        base the physics model's prediction from it and ``u_k (B, 4)``."""
+        return yt if self.physics is None else to_tilde(self.physics(from_tilde(yt), u))
+
+    def compile_base(self, setting: str = "compile") -> None:
+        """Run the physics base compiled (:func:`nanosysid.numerics.compiled`), one graph for
+        every batch size: its few hundred small operations a step, forward and backward, bound a
+        physics + residual model's training by their overhead. A model without a physics base
+        is left as it is: its step is matrix products, no faster compiled."""
+        if self.physics is not None:
+            self._compiled_base = compiled(self.base, setting=setting, dynamic=True)
+
     def step(self, yt: Tensor, u: Tensor, state: Any = None) -> tuple[Tensor, Any]:
         """One sample ahead: ``ỹ_k (B, 12)``, ``u_k (B, 4)`` -> ``ỹ_{k+1}`` and the new state."""
         d, state = self.network(self._features(yt, u), state)
-        base = yt if self.physics is None else to_tilde(self.physics(from_tilde(yt), u))
-        return base + self.d_std * d, state
+        return (self._compiled_base or self.base)(yt, u) + self.d_std * d, state
 
     def rollout(self, yt0: Tensor, u: Tensor) -> Tensor:
         """``ỹ_0 (B, 12)``, ``u (B, H, 4)`` -> predictions ``(B, H, 12)`` for h = 1..H."""

@@ -26,6 +26,7 @@ from nanosysid.errors import ConfigError
 from nanosysid.identify import identified_vehicle
 from nanosysid.models.learned import SequenceModel, build_model, save_checkpoint, to_tilde
 from nanosysid.models.physics import PhysicsStep
+from nanosysid.numerics import quiet_tracing
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["SysIdModule", "window_tensors", "train_model", "network_spec", "physics_base", "optimiser_parts"]
@@ -113,6 +114,7 @@ def train_model(
     log_dir: Path | None = None,
     accelerator: str = "auto",
     devices: int | str = 1,
+    compile: bool = True,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train one model and save its checkpoint to ``out``.
@@ -128,6 +130,8 @@ def train_model(
         epochs, patience: At most ``epochs``; early stopping after ``patience`` without a
             better validation loss.
         log_dir: Where dvclive writes the per-epoch metrics (none if None).
+        compile: Run a physics base compiled (:meth:`SequenceModel.compile_base`); its bytes
+            differ from the eager one's by rounding, so the trained weights do too.
 
     Returns:
         A summary (epochs run, best validation loss, parameter count).
@@ -142,6 +146,8 @@ def train_model(
                           f"runs present: {sorted({f.run for f in flights})})")
     model = build_model(network, physics)
     model.set_statistics(*_statistics(fit_f, model))
+    if compile:
+        model.compile_base(setting="train.compile")
     ds_fit = window_tensors(fit_f, int(horizon), int(stride))
     ds_val = window_tensors(val_f, int(horizon), int(stride))
     gen = torch.Generator().manual_seed(int(seed))
@@ -156,7 +162,7 @@ def train_model(
     stop = pl.callbacks.EarlyStopping("val/loss", patience=int(patience), mode="min")
     # the untrained model is a candidate too: phys_res starts as the physics model, and
     # training never hands back something worse on the validation flights than its start
-    with torch.no_grad():
+    with torch.no_grad(), quiet_tracing():
         start = float(np.mean([module.loss(b).item() for b in dl_val]))
     best = _KeepBest(start, model)
     from lightning_fabric.utilities.exceptions import MisconfigurationException
@@ -172,7 +178,8 @@ def train_model(
         first = str(e).split(". ")[0].strip("`")
         raise ConfigError(f"train: trainer.accelerator={accelerator}, trainer.devices={devices}: {first} on this "
                           "machine; set trainer.accelerator=auto (or cpu)") from None
-    trainer.fit(module, dl_fit, dl_val)
+    with quiet_tracing():  # the training graph (with gradients) is traced at the first batch
+        trainer.fit(module, dl_fit, dl_val)
     # a diverged run is no model: its best epoch would silently be the untrained start
     if best.last is not None and not (best.last <= DIVERGED * start):
         raise ConfigError(f"train: training diverged (validation loss {best.last:.4g} after epoch "

@@ -1,7 +1,7 @@
 """The README's generated sections: the results, from the report stage's output, and the run
 times, from ``make bench``'s record.
 
-``python -m nanosysid.report.readme`` (run by ``make repro`` after ``dvc repro``) copies the results
+``python -m nanosysid.report.readme`` (run by ``make repro`` after the pipeline) copies the results
 table of ``reports/benchmark.md`` and its MAE figure into the section between the two markers
 of ``README.md``, and the figure to ``docs/figures/`` so the README shows it without the DVC
 cache. The section records the MD5 of both sources as ``dvc.lock`` has them, so a test can
@@ -13,7 +13,7 @@ The physics section is the identification and the pattern of the results from
 
 The run-times section is the table of ``reports/bench.json`` (``make bench``), with the machine
 it was measured on, and each stage's time from ``reports/repro.json`` (``make repro``,
-:mod:`nanosysid.report.runtimes`); the README states no time that is not in those records.
+:mod:`nanosysid.repro`); the README states no time that is not in those records.
 
 The world section is the table of the simulated world's effects, from their records
 (:data:`nanosysid.sim.world.RECORDS`).
@@ -129,7 +129,10 @@ def repro_lines(repro_json: Path) -> list[str]:
     record = json.loads(Path(repro_json).read_text())
     stages = sorted(record["stages"].items(), key=lambda kv: -kv[1])
     ran = "every stage" if not record["skipped"] else f"{len(stages)} stages ({len(record['skipped'])} skipped or cached)"
-    lines = [f"`make repro` ({Path(repro_json).as_posix()}) ran {ran} in {record['total_s']:g} s on "
+    jobs = int(record.get("jobs", 1))
+    side = (f", {jobs} stages at a time where the DAG allows (so the stages' times, each measured while "
+            "others ran beside it, add up to more than the total)") if jobs > 1 else ""
+    lines = [f"`make repro` ({Path(repro_json).as_posix()}) ran {ran} in {record['total_s']:g} s{side} on "
              f"{_machine(record['machine'])}:", "", "| stage | s |", "|---|---|"]
     lines += [f"| `{name}` | {s:g} |" for name, s in stages]
     return lines

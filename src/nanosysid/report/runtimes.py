@@ -1,6 +1,8 @@
-"""The time of each pipeline stage, recorded by ``make repro``.
+"""The time of each pipeline stage of one DVC command, and the record ``make repro`` writes.
 
-``python -m nanosysid.report.runtimes --out reports/repro.json -- dvc repro`` runs the command,
+``make repro`` runs the stages side by side (:mod:`nanosysid.repro`) and writes this module's
+record. ``python -m nanosysid.report.runtimes --out reports/repro.json -- dvc repro`` times a
+plain DVC command in the same record, one stage at a time: it runs the command,
 passes its output through, and times each stage from DVC's own lines (``Running stage 'X'``
 to the lock file's update). When the command succeeds it writes the record: the machine, each
 stage that ran and its seconds, the stages DVC skipped or restored from its run cache, and the

@@ -12,7 +12,6 @@ from __future__ import annotations
 import contextlib
 import functools
 import logging
-import warnings
 from dataclasses import dataclass, field
 from typing import Any, Mapping, Sequence
 
@@ -25,7 +24,7 @@ from tqdm.auto import tqdm
 from nanosysid import dynamics, so3
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, OUTPUT_COLUMNS, Flight
 from nanosysid.errors import ConfigError
-from nanosysid.numerics import LOOP_THREADS, threads
+from nanosysid.numerics import LOOP_THREADS, compiled, quiet_tracing, threads
 from nanosysid.settings import configured, defaults
 from nanosysid.sim.controller import ControllerState, Mellinger, MellingerGains
 from nanosysid.sim.trajectories import Reference, make_reference
@@ -250,9 +249,7 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
     states, cmds, wrenches = [], [], []  # state (17), rotor command (4) and the world's wrench (6) at every step
     bar = tqdm(total=n_steps, desc=f"simulate {shown} flights", unit="step", unit_scale=True,
                disable=not progress, mininterval=1.0)
-    with torch.inference_mode(), _recompiles(), warnings.catch_warnings():
-        # the compiled step reads the mixer through its cache of constants: traced once, harmless
-        warnings.filterwarnings("ignore", message=".*lru_cache.*", category=UserWarning)
+    with torch.inference_mode(), _recompiles(), quiet_tracing():
         # inputs made here, so that the step sees inference tensors from the first call on
         x, cmd = x.clone(), torch.zeros(B, 4, dtype=torch.float64)
         ctl = torch.cat((cstate.i_pos, cstate.i_att, cstate.prev_ew), -1)
@@ -329,18 +326,9 @@ def _advance(x: torch.Tensor, cmd: torch.Tensor, ctl: torch.Tensor, p_ref: torch
 
 @functools.cache
 def _compiled_advance():
-    # inductor fuses the step's few hundred tensor operations into a handful of C++ loops; with
-    # ATEN_CPU_CAPABILITY=default (numerics.pin) they are scalar code, compiled without
-    # floating-point contraction or unsafe math (inductor's defaults) for the pinned x86-64-v2
-    # (TORCHINDUCTOR_CPP_MARCH): the same bytes on every x86 machine, whatever the batch
-    from torch._inductor.cpp_builder import get_cpp_compiler
-
-    try:
-        get_cpp_compiler()  # inductor's own search: $CXX, then g++, clang++
-    except Exception as e:
-        raise ConfigError(f"sim.flight.compile: the compiled step needs a C++ compiler ({e}); install g++, or set "
-                          "sim.flight.compile=false to run the step eagerly") from None
-    return torch.compile(_advance, dynamic=False)
+    # the step's few hundred tensor operations fused into a handful of C++ loops, the same bytes
+    # on every x86 machine whatever the batch (numerics.compiled)
+    return compiled(_advance, setting="sim.flight.compile")
 
 
 @contextlib.contextmanager

@@ -1,0 +1,199 @@
+"""``make repro``: the DVC pipeline with its independent stages side by side.
+
+``dvc repro`` runs one stage at a time, so on two cores the machine idles half of the time a
+single-threaded stage runs, and the three trainings, the campaign and the evaluations wait
+for each other although none reads another's outputs. DVC lets separate ``dvc repro <stage>``
+calls on one repository run at once: each holds the repository's lock only to check and to
+record its stage, not while the stage's command runs. ``python -m nanosysid.repro --jobs 2``
+runs every stage of ``dvc.yaml`` that way, as ``dvc --wait-for-lock repro --single-item
+<stage>``, once every stage it depends on has finished, at most ``jobs`` at a time, the stage
+with the longest chain of work below it first (by the stage times of the last record).
+
+What it writes is what ``dvc repro`` writes: the same ``dvc.lock``, outputs and run cache; a
+stage's bytes never depend on what runs beside it (each stage pins its own thread counts,
+:mod:`nanosysid.numerics`). Two things are its own:
+
+- while stages share the cores, OpenMP's waiting threads sleep instead of spinning
+  (``OMP_WAIT_POLICY=PASSIVE``, a switch of speed only): a training's two spinning threads
+  beside another busy process ran 3x slower than alone, sleeping ones 1.7x;
+- each stage's output goes to ``.dvc/tmp/repro/<stage>.log``; the console shows one line a
+  stage and a progress bar, and the end of the log of a stage that fails.
+
+When every stage succeeds it writes the record of :mod:`nanosysid.report.runtimes` (each stage's
+seconds, from its call's start to its end, the stages skipped or restored from the run cache,
+and the total), with ``jobs``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import time
+from collections import deque
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Mapping
+
+from tqdm import tqdm
+
+from nanosysid.dataio import atomic_file
+from nanosysid.report.runtimes import FORMAT, machine
+
+__all__ = ["StageRun", "stage_graph", "critical_order", "run_graph", "main"]
+
+LOG_DIR = Path(".dvc/tmp/repro")
+_SKIPPED = re.compile(r"Stage '[^']+' (didn't change, skipping|is cached - skipping run)")
+
+
+@dataclass(frozen=True)
+class StageRun:
+    """How one stage's call ended: its exit status, seconds, and whether DVC skipped it."""
+
+    rc: int
+    seconds: float
+    skipped: bool = False
+
+
+def stage_graph(root: Path = Path(".")) -> dict[str, set[str]]:
+    """Each stage of the repository's pipelines (``train@lstm``) and the stages it depends on,
+    as DVC's own index sees them; stages without a command (``dvc add``-ed data) are left out."""
+    from dvc.repo import Repo
+
+    with Repo(str(root)) as repo:
+        graph = repo.index.graph  # an edge runs from a stage to a stage it depends on
+        runnable = {s for s in graph.nodes if getattr(s, "cmd", None)}
+        return {s.addressing: {d.addressing for d in graph.successors(s) if d in runnable} for s in runnable}
+
+
+def critical_order(upstream: Mapping[str, set[str]], seconds: Mapping[str, float], default: float = 1.0) -> list[str]:
+    """The stages by the work on the longest chain that starts with each (its own seconds and
+    those of its longest chain of dependants), longest first, names breaking ties: starting the
+    long chains early is what shortens the whole run."""
+    below: dict[str, set[str]] = {s: set() for s in upstream}
+    for s, ups in upstream.items():
+        for u in ups:
+            below[u].add(s)
+    chain: dict[str, float] = {}
+
+    def length(s: str) -> float:
+        if s not in chain:
+            chain[s] = seconds.get(s, default) + max((length(d) for d in below[s]), default=0.0)
+        return chain[s]
+
+    return sorted(upstream, key=lambda s: (-length(s), s))
+
+
+def run_graph(upstream: Mapping[str, set[str]], run: Callable[[str], StageRun], *, jobs: int = 2,
+              order: list[str] | None = None, progress: bool = True,
+              say: Callable[[str], None] = print) -> tuple[dict[str, StageRun], str | None]:
+    """Run every stage once all those it depends on have succeeded, at most ``jobs`` at a time,
+    in ``order`` among the ready ones.
+
+    Args:
+        upstream: Each stage and the stages it depends on.
+        run: Runs one stage (in a thread of this process) and says how it ended.
+        order: The priority of the stages (default: their names' order).
+
+    Returns:
+        What each stage that ran did, and the first stage that failed (None if none did); after
+        a failure no new stage starts, those running finish.
+    """
+    unknown = sorted({u for ups in upstream.values() for u in ups} - set(upstream))
+    if unknown:
+        raise ValueError(f"stages depend on stages not in the graph: {unknown}")
+    rank = {s: i for i, s in enumerate(order or sorted(upstream))}
+    done: dict[str, StageRun] = {}
+    failed: str | None = None
+    running: dict[Future, str] = {}
+    start = time.monotonic()
+    bar = tqdm(total=len(upstream), desc="repro", unit="stage", disable=not progress, file=sys.stderr)
+    with ThreadPoolExecutor(max_workers=max(1, int(jobs))) as pool:
+        while True:
+            if failed is None:
+                busy = set(running.values())
+                ready = sorted((s for s in upstream if s not in done and s not in busy
+                                and all(u in done for u in upstream[s])), key=lambda s: rank.get(s, len(rank)))
+                for s in ready[: max(1, int(jobs)) - len(running)]:
+                    say(f"[{time.monotonic() - start:7.1f} s] {s}: running")
+                    running[pool.submit(run, s)] = s
+            if not running:
+                break
+            bar.set_postfix_str(", ".join(sorted(running.values())))
+            finished, _ = wait(list(running), return_when=FIRST_COMPLETED)
+            for f in finished:
+                s = running.pop(f)
+                r = f.result()
+                done[s] = r
+                bar.update()
+                what = "skipped" if r.skipped else ("done" if r.rc == 0 else f"FAILED (exit {r.rc})")
+                say(f"[{time.monotonic() - start:7.1f} s] {s}: {what} in {r.seconds:.1f} s")
+                if r.rc != 0 and failed is None:
+                    failed = s
+    bar.close()
+    missing = [s for s in upstream if s not in done]
+    if failed is None and missing:  # a cycle: DVC refuses those before this runs
+        raise ValueError(f"stages that never became ready: {missing}")
+    return done, failed
+
+
+def _dvc_stage(env: Mapping[str, str], log_dir: Path) -> Callable[[str], StageRun]:
+    def run(stage: str) -> StageRun:
+        log = log_dir / (stage.replace("/", "_") + ".log")
+        t0 = time.monotonic()
+        with log.open("w") as out:
+            rc = subprocess.call([sys.executable, "-m", "dvc", "--wait-for-lock", "repro", "--single-item", stage],
+                                 stdout=out, stderr=subprocess.STDOUT, env=dict(env))
+        seconds = round(time.monotonic() - t0, 1)
+        return StageRun(rc, seconds, skipped=bool(_SKIPPED.search(log.read_text(errors="replace"))))
+
+    return run
+
+
+def _last_times(path: Path) -> dict[str, float]:
+    try:
+        return {k: float(v) for k, v in json.loads(path.read_text())["stages"].items()}
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return {}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0].strip("`: "))
+    p.add_argument("--jobs", type=int, default=2, help="stages at a time (default 2)")
+    p.add_argument("--out", type=Path, default=Path("reports/repro.json"), help="the record of stage times")
+    a = p.parse_args(argv)
+    if a.jobs < 1:
+        p.error(f"--jobs must be at least 1, got {a.jobs}")
+    upstream = stage_graph()
+    order = critical_order(upstream, _last_times(a.out))
+    LOG_DIR.mkdir(parents=True, exist_ok=True)
+    env = dict(os.environ)
+    if a.jobs > 1:
+        env["OMP_WAIT_POLICY"] = "PASSIVE"
+    t0 = time.monotonic()
+    done, failed = run_graph(upstream, _dvc_stage(env, LOG_DIR), jobs=a.jobs, order=order)
+    total = round(time.monotonic() - t0, 1)
+    if failed is not None:
+        log = LOG_DIR / (failed.replace("/", "_") + ".log")
+        tail = deque(log.read_text(errors="replace").splitlines(), maxlen=40)
+        print(f"\nstage {failed} failed; the end of its log ({log}):\n" + "\n".join(tail), file=sys.stderr)
+        return done[failed].rc or 1
+    ran = {s: r.seconds for s, r in done.items() if not r.skipped}
+    skipped = sorted(s for s, r in done.items() if r.skipped)
+    print(f"{len(ran)} stages ran, {len(skipped)} skipped or cached, in {total:g} s")
+    if ran:
+        ordered = {s: ran[s] for s in order if s in ran}
+        payload = {"format": FORMAT, "machine": machine(), "command": f"python -m nanosysid.repro --jobs {a.jobs}",
+                   "jobs": a.jobs, "stages": ordered, "skipped": skipped, "total_s": total}
+        with atomic_file(a.out, replace=True) as tmp:  # the record of the last run that ran a stage
+            tmp.write_text(json.dumps(payload, indent=1) + "\n")
+        print(f"{a.out}: {len(ran)} stages timed, {total:g} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

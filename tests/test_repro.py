@@ -1,0 +1,134 @@
+"""``make repro``'s runner: the DAG's independent stages side by side, DVC's record the same."""
+
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from nanosysid.repro import StageRun, critical_order, run_graph
+
+# a diamond under a lone stage:  a -> (b, c) -> d,  e alone
+DIAMOND = {"a": set(), "b": {"a"}, "c": {"a"}, "d": {"b", "c"}, "e": set()}
+
+
+def test_the_longest_chain_of_work_starts_first():
+    seconds = {"a": 10, "b": 100, "c": 5, "d": 1, "e": 50}
+    # chains by hand: a 10+100+1 = 111, b 101, e 50, c 6, d 1
+    assert critical_order(DIAMOND, seconds) == ["a", "b", "e", "c", "d"]
+    # unknown times count 1 s each: a's chain of three first, then b and c (two), ties by name
+    assert critical_order(DIAMOND, {}) == ["a", "b", "c", "d", "e"]
+
+
+def _fake(times, fail=()):
+    lock, live, log = threading.Lock(), set(), []
+    peak = [0]
+
+    def run(stage):
+        with lock:
+            live.add(stage)
+            peak[0] = max(peak[0], len(live))
+            log.append(("start", stage))
+        time.sleep(times.get(stage, 0.05))
+        with lock:
+            live.discard(stage)
+            log.append(("end", stage))
+        return StageRun(3 if stage in fail else 0, times.get(stage, 0.05))
+
+    return run, log, peak
+
+
+@pytest.mark.parametrize("jobs", [1, 2, 3])
+def test_stages_start_after_all_they_depend_on_and_never_more_than_jobs_at_once(jobs):
+    run, log, peak = _fake({"b": 0.2, "c": 0.2, "e": 0.2})
+    done, failed = run_graph(DIAMOND, run, jobs=jobs, progress=False, say=lambda s: None)
+    assert failed is None and set(done) == set(DIAMOND)
+    at = {(what, s): i for i, (what, s) in enumerate(log)}
+    for s, ups in DIAMOND.items():
+        for u in ups:
+            assert at[("end", u)] < at[("start", s)], (u, s)
+    assert peak[0] == min(jobs, 3)  # b, c and e can run at once, never more
+
+
+def test_after_a_failure_no_stage_starts_and_the_first_failure_is_named():
+    run, log, _ = _fake({"c": 0.05, "e": 0.3}, fail={"c"})
+    done, failed = run_graph(DIAMOND, run, jobs=2, order=["a", "c", "e", "b", "d"], progress=False,
+                             say=lambda s: None)
+    assert failed == "c" and done["c"].rc == 3
+    assert "d" not in done and "b" not in done  # b was ready when c failed, and was not started
+    assert done["e"].rc == 0  # what was running finishes
+
+
+def test_a_dependency_outside_the_graph_is_refused():
+    with pytest.raises(ValueError, match=r"not in the graph: \['z'\]"):
+        run_graph({"a": {"z"}}, lambda s: StageRun(0, 0.0), progress=False, say=lambda s: None)
+
+
+# each stage writes its start and end (wall clock) into its output, after sleeping
+STAGE = """import sys, time
+name, fail = sys.argv[1], sys.argv[2] == "fail"
+t0 = time.time()
+time.sleep(float(sys.argv[3]))
+if fail:
+    print("stage", name, "broke on purpose")
+    sys.exit(3)
+open(name + ".txt", "w").write(f"{t0} {time.time()}")
+"""
+
+
+def _toy_repo(root: Path, env: dict, fail: str = "") -> None:
+    root.mkdir()
+    (root / "stage.py").write_text(STAGE)
+    stages = {"a": ([], 0.0), "b": (["a.txt"], 2.0), "c": (["a.txt"], 2.0), "d": (["b.txt", "c.txt"], 0.0)}
+    lines = ["stages:"]
+    for name, (deps, sleep) in stages.items():
+        mode = "fail" if name == fail else "ok"
+        lines += [f"  {name}:", f"    cmd: {sys.executable} stage.py {name} {mode} {sleep}",
+                  "    deps: [stage.py" + "".join(f", {d}" for d in deps) + "]", f"    outs: [{name}.txt]"]
+    (root / "dvc.yaml").write_text("\n".join(lines) + "\n")
+    for cmd in (["git", "init", "-q"], [sys.executable, "-m", "dvc", "init", "-q"]):
+        subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True)
+
+
+def _repro(root, env):
+    return subprocess.run([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
+                          cwd=root, env=env, capture_output=True, text=True)
+
+
+@pytest.fixture
+def env():
+    src = str(Path(__file__).resolve().parents[1] / "src")
+    return dict(os.environ, DVC_NO_ANALYTICS="1", PYTHONPATH=src + os.pathsep + os.environ.get("PYTHONPATH", ""))
+
+
+def test_independent_stages_of_a_dvc_pipeline_run_side_by_side_and_dvc_records_them_all(tmp_path, env):
+    root = tmp_path / "toy"
+    _toy_repo(root, env)
+    r = _repro(root, env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    t = {s: [float(x) for x in (root / f"{s}.txt").read_text().split()] for s in "abcd"}
+    assert t["b"][0] < t["c"][1] and t["c"][0] < t["b"][1], t  # b and c overlapped
+    assert t["d"][0] >= max(t["b"][1], t["c"][1]) and min(t["b"][0], t["c"][0]) >= t["a"][1], t
+    status = subprocess.run([sys.executable, "-m", "dvc", "status"], cwd=root, env=env, capture_output=True,
+                            text=True)
+    assert "up to date" in status.stdout, status.stdout  # dvc.lock holds every stage, as `dvc repro` writes it
+    record = json.loads((root / "rec.json").read_text())
+    assert set(record["stages"]) == set("abcd") and record["jobs"] == 2 and record["skipped"] == []
+    assert record["total_s"] < record["stages"]["b"] + record["stages"]["c"]  # the overlap saved time
+    again = _repro(root, env)
+    assert again.returncode == 0 and "0 stages ran, 4 skipped" in again.stdout, again.stdout + again.stderr
+    assert json.loads((root / "rec.json").read_text()) == record  # the record is the last run that ran a stage
+
+
+def test_a_failing_stage_stops_the_run_with_its_log_and_runs_nothing_after_it(tmp_path, env):
+    root = tmp_path / "toy"
+    _toy_repo(root, env, fail="c")
+    r = _repro(root, env)
+    assert r.returncode != 0
+    assert "stage c failed" in r.stderr and "stage c broke on purpose" in r.stderr, r.stderr
+    assert "Traceback" not in r.stderr
+    assert (root / "b.txt").exists() and not (root / "d.txt").exists() and not (root / "rec.json").exists()
