@@ -15,7 +15,8 @@ stage's bytes never depend on what runs beside it (each stage pins its own threa
 
 - while stages share the cores, OpenMP's waiting threads sleep instead of spinning
   (``OMP_WAIT_POLICY=PASSIVE``, a switch of speed only): a training's two spinning threads
-  beside another busy process ran 3x slower than alone, sleeping ones 1.7x;
+  beside another busy process run several times slower than alone, sleeping ones about as
+  fast as one thread;
 - each stage's output goes to ``.dvc/tmp/repro/<stage>.log``; the console shows one line a
   stage and a progress bar, and the end of the log of a stage that fails.
 
