@@ -42,8 +42,7 @@ from typing import Callable, Mapping
 
 from tqdm import tqdm
 
-from nanosysid.dataio import atomic_file
-from nanosysid.report.runtimes import FORMAT, machine
+from nanosysid.report.runtimes import write_record
 
 __all__ = ["StageRun", "stage_graph", "critical_order", "run_graph", "main"]
 
@@ -169,14 +168,25 @@ def main(argv: list[str] | None = None) -> int:
     a = p.parse_args(argv)
     if a.jobs < 1:
         p.error(f"--jobs must be at least 1, got {a.jobs}")
-    upstream = stage_graph()
+    from dvc.exceptions import DvcException
+
+    try:
+        upstream = stage_graph()
+    except DvcException as e:  # no repository, a malformed dvc.yaml: DVC's own message, no traceback
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     order = critical_order(upstream, _last_times(a.out))
     LOG_DIR.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     if a.jobs > 1:
         env["OMP_WAIT_POLICY"] = "PASSIVE"
     t0 = time.monotonic()
-    done, failed = run_graph(upstream, _dvc_stage(env, LOG_DIR), jobs=a.jobs, order=order)
+    try:
+        done, failed = run_graph(upstream, _dvc_stage(env, LOG_DIR), jobs=a.jobs, order=order)
+    except KeyboardInterrupt:  # the stages got it too: DVC stops each and records none of them
+        print("\ninterrupted: the stages that were running stopped unrecorded; `make repro` again goes on "
+              "from there", file=sys.stderr)
+        return 130
     total = round(time.monotonic() - t0, 1)
     if failed is not None:
         log = LOG_DIR / (failed.replace("/", "_") + ".log")
@@ -186,13 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     ran = {s: r.seconds for s, r in done.items() if not r.skipped}
     skipped = sorted(s for s, r in done.items() if r.skipped)
     print(f"{len(ran)} stages ran, {len(skipped)} skipped or cached, in {total:g} s")
-    if ran:
-        ordered = {s: ran[s] for s in order if s in ran}
-        payload = {"format": FORMAT, "machine": machine(), "command": f"python -m nanosysid.repro --jobs {a.jobs}",
-                   "jobs": a.jobs, "stages": ordered, "skipped": skipped, "total_s": total}
-        with atomic_file(a.out, replace=True) as tmp:  # the record of the last run that ran a stage
-            tmp.write_text(json.dumps(payload, indent=1) + "\n")
-        print(f"{a.out}: {len(ran)} stages timed, {total:g} s")
+    write_record(a.out, f"python -m nanosysid.repro --jobs {a.jobs}",
+                 {"jobs": a.jobs, "stages": {s: ran[s] for s in order if s in ran}, "skipped": skipped, "total_s": total})
     return 0
 
 

@@ -26,7 +26,7 @@ from typing import Iterable, TextIO
 from nanosysid import numerics
 from nanosysid.dataio import atomic_file
 
-__all__ = ["FORMAT", "machine", "stage_times", "main"]
+__all__ = ["FORMAT", "machine", "stage_times", "write_record", "main"]
 
 FORMAT = "nanosysid-repro-1"
 
@@ -91,13 +91,19 @@ def main(argv: list[str] | None = None) -> int:
     rc = proc.wait()
     if rc != 0:
         return rc
-    if record["stages"]:
-        payload = {"format": FORMAT, "machine": machine(), "command": " ".join(Path(cmd[0]).name.split() + cmd[1:]),
-                   **record}
-        with atomic_file(a.out, replace=True) as tmp:  # the record of the last run that ran a stage
-            tmp.write_text(json.dumps(payload, indent=1) + "\n")
-        print(f"{a.out}: {len(record['stages'])} stages timed, {record['total_s']:g} s")
+    write_record(a.out, " ".join(Path(cmd[0]).name.split() + cmd[1:]), record)
     return 0
+
+
+def write_record(out: Path, command: str, record: dict[str, object]) -> None:
+    """Write the record (``stages``, ``skipped``, ``total_s`` and what else ``record`` holds) with
+    the machine and the command, when a stage ran: the record is the last run that ran one."""
+    if not record["stages"]:
+        return
+    payload = {"format": FORMAT, "machine": machine(), "command": command, **record}
+    with atomic_file(out, replace=True) as tmp:
+        tmp.write_text(json.dumps(payload, indent=1) + "\n")
+    print(f"{out}: {len(record['stages'])} stages timed, {record['total_s']:g} s")
 
 
 if __name__ == "__main__":
