@@ -89,7 +89,7 @@ class SequenceModel(nn.Module):
         base the physics model's prediction from it and ``u_k (B, 4)``."""
         return yt if self.physics is None else to_tilde(self.physics(from_tilde(yt), u))
 
-    def compile_base(self, setting: str = "compile") -> None:
+    def compile_base(self, setting: str = "train.compile") -> None:
         """Run the physics base compiled (:func:`nanosysid.numerics.compiled`), one graph for
         every batch size: its few hundred small operations a step, forward and backward, bound a
         physics + residual model's training by their overhead. A model without a physics base
