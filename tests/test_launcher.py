@@ -17,10 +17,15 @@ SLURM = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "launcher" / "slur
 
 
 def hypot(a, b):
+    import numpy  # noqa: F401 (loads its BLAS)
     import torch
+    from threadpoolctl import threadpool_info
 
-    # the task sees the launcher's thread count, whatever the parent process uses
-    return math.hypot(a, b), torch.get_num_threads()
+    # the task sees the launcher's thread count, torch's and numpy's BLAS's, whatever the parent
+    # process uses (the pinned environment gives every library two)
+    blas = {p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"}
+    assert blas, "no BLAS found loaded"
+    return math.hypot(a, b), torch.get_num_threads(), blas
 
 
 TASKS = [(3.0, 4.0), (5.0, 12.0), (8.0, 15.0)]
@@ -29,7 +34,8 @@ TASKS = [(3.0, 4.0), (5.0, 12.0), (8.0, 15.0)]
 def test_local_workers_return_results_in_the_tasks_order():
     for workers in (1, 2):
         out = map_tasks(hypot, TASKS, Launcher(workers=workers))
-        assert out == [(5.0, 1), (13.0, 1), (17.0, 1)]
+        assert out == [(5.0, 1, {1}), (13.0, 1, {1}), (17.0, 1, {1})]
+    assert map_tasks(hypot, TASKS[:1], Launcher(workers=1, threads=3)) == [(5.0, 3, {3})]
 
 
 def test_slurm_executor_carries_the_configs_partition_time_and_memory(tmp_path, monkeypatch):
@@ -46,7 +52,7 @@ def test_slurm_executor_carries_the_configs_partition_time_and_memory(tmp_path, 
 
 def test_slurm_path_runs_tasks_through_submitit(tmp_path):
     spec = Launcher.from_mapping({**SLURM, "cluster": "debug", "folder": str(tmp_path / "jobs")})
-    assert map_tasks(hypot, TASKS, spec) == [(5.0, 1), (13.0, 1), (17.0, 1)]
+    assert map_tasks(hypot, TASKS, spec) == [(5.0, 1, {1}), (13.0, 1, {1}), (17.0, 1, {1})]
     assert any((tmp_path / "jobs").iterdir())  # submitit's job folders, on the "shared" folder
 
 
