@@ -30,7 +30,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import subprocess
 import sys
 import time
@@ -42,12 +41,11 @@ from typing import Callable, Mapping
 
 from tqdm import tqdm
 
-from nanosysid.report.runtimes import write_record
+from nanosysid.report.runtimes import SKIPPED, write_record
 
 __all__ = ["StageRun", "stage_graph", "critical_order", "run_graph", "main"]
 
 LOG_DIR = Path(".dvc/tmp/repro")
-_SKIPPED = re.compile(r"Stage '[^']+' (didn't change, skipping|is cached - skipping run)")
 
 
 @dataclass(frozen=True)
@@ -149,7 +147,7 @@ def _dvc_stage(env: Mapping[str, str], log_dir: Path) -> Callable[[str], StageRu
             rc = subprocess.call([sys.executable, "-m", "dvc", "--wait-for-lock", "repro", "--single-item", stage],
                                  stdout=out, stderr=subprocess.STDOUT, env=dict(env))
         seconds = round(time.monotonic() - t0, 1)
-        return StageRun(rc, seconds, skipped=bool(_SKIPPED.search(log.read_text(errors="replace"))))
+        return StageRun(rc, seconds, skipped=bool(SKIPPED.search(log.read_text(errors="replace"))))
 
     return run
 

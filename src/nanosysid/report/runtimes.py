@@ -26,12 +26,13 @@ from typing import Iterable, TextIO
 from nanosysid import numerics
 from nanosysid.dataio import atomic_file
 
-__all__ = ["FORMAT", "machine", "stage_times", "write_record", "main"]
+__all__ = ["FORMAT", "SKIPPED", "machine", "stage_times", "write_record", "main"]
 
 FORMAT = "nanosysid-repro-1"
 
 _RUNNING = re.compile(r"Running stage '([^']+)'")
-_SKIPPED = re.compile(r"Stage '([^']+)' (didn't change, skipping|is cached - skipping run)")
+# DVC's line for a stage it did not run: unchanged, or restored from its run cache
+SKIPPED = re.compile(r"Stage '([^']+)' (didn't change, skipping|is cached - skipping run)")
 _DONE = re.compile(r"Updating lock file")
 
 
@@ -64,13 +65,13 @@ def stage_times(lines: Iterable[str], clock=time.monotonic, echo: TextIO | None 
             echo.write(line)
             echo.flush()
         now = clock()
-        if (m := _RUNNING.search(line)) or _DONE.search(line) or _SKIPPED.search(line):
+        if (m := _RUNNING.search(line)) or _DONE.search(line) or SKIPPED.search(line):
             if current is not None:
                 times[current] = round(now - since, 1)
                 current = None
         if m:
             current, since = m.group(1), now
-        elif (s := _SKIPPED.search(line)):
+        elif (s := SKIPPED.search(line)):
             skipped.append(s.group(1))
     end = clock()
     if current is not None:
