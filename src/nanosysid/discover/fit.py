@@ -39,6 +39,7 @@ EDGE = 10  # samples dropped at each end of a flight: the smoothing filter's edg
 # the entries whose columns the regression holds: the nominal refit, then every library entry
 # with columns (input_delay is a search over the data, not a column)
 COLUMN_ENTRIES = (effects.NOMINAL.name,) + tuple(n for n, e in effects.LIBRARY.items() if e.columns is not None)
+_COLUMN_ENDS = np.cumsum([effects.entry(n).n_columns for n in COLUMN_ENTRIES])
 
 
 def measured_wrench(flight: Flight, vehicle: Vehicle, window: int, order: int) -> np.ndarray:
@@ -113,8 +114,10 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
     meas = measured_wrench(flight, vehicle, window, order) if measured is None else measured
     r = meas - _smooth(nominal_wrench(u, vehicle), window, order)
     x, om, od = (torch.from_numpy(np.ascontiguousarray(v)) for v in (flight.y, u, om_dot))
-    feats = {name: _smooth(effects.features([name], x, om, od, vehicle).numpy(), window, order)[EDGE:-EDGE]
-             for name in COLUMN_ENTRIES}
+    # every entry's columns in one array, smoothed in one call (the filter works column by
+    # column, so each entry's are the same as smoothed alone), then cut into the entries' views
+    every = _smooth(effects.features(COLUMN_ENTRIES, x, om, od, vehicle).numpy(), window, order)[EDGE:-EDGE]
+    feats = dict(zip(COLUMN_ENTRIES, np.split(every, _COLUMN_ENDS[:-1], axis=-1)))
     sg = effects.signals(x, om, od)
     terms = np.column_stack([torch.as_tensor(fn(sg, vehicle)).numpy() * np.ones(len(flight))
                              for _, fn in effects.TERM_SIGNALS.values()])
@@ -155,12 +158,19 @@ class Grams:
         self.G = np.zeros((B, 6, P, P))  # per block and channel
         self.h = np.zeros((B, 6, P))
         self.e = np.zeros((B, 6))
+        # channel-major copies, so that each block's products are BLAS's (a tenth of einsum's
+        # time); a flight's blocks are consecutive samples
+        xc, yc = np.ascontiguousarray(Xw.transpose(1, 0, 2)), np.ascontiguousarray(yw.T)[..., None]
+        order = np.argsort(blocks, kind="stable")
+        if np.any(order != np.arange(len(blocks))):
+            xc, yc = xc[:, order], yc[:, order]
+        edges = np.searchsorted(blocks[order], np.arange(B + 1))
         for b in range(B):
-            m = blocks == b
-            xb, yb = Xw[m], yw[m]
-            self.G[b] = np.einsum("ncp,ncq->cpq", xb, xb)
-            self.h[b] = np.einsum("ncp,nc->cp", xb, yb)
-            self.e[b] = (yb ** 2).sum(axis=0)
+            xb, yb = xc[:, edges[b]:edges[b + 1]], yc[:, edges[b]:edges[b + 1]]
+            xt = xb.transpose(0, 2, 1)
+            self.G[b] = xt @ xb
+            self.h[b] = (xt @ yb)[..., 0]
+            self.e[b] = (yb ** 2).sum(axis=(1, 2))
         self.B, self.P = B, P
         self.fold = np.arange(B) % folds
         self.folds = folds
