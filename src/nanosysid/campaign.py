@@ -242,7 +242,8 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
     test = [f for f in flights if f.trajectory == setup.test]
     ident, nominal = _identified(world, flights, setup)
     extra = world.extra_wrench(setup.vehicle)
-    oracle = sim.oracle(world.effects, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra)
+    oracle = sim.oracle(world.effects, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra,
+                        compile=setup.sim.compile)
     try:
         r = discover.run(train, test, vehicle=nominal, oracle=oracle, sindy=True, analysis=False, horizon=horizon,
                          inertia_z_range=setup.inertia_z_range)
@@ -258,7 +259,8 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
     # the gap a model of the state can close: to the oracle that knows every effect but the
     # time-varying ones (turbulence, the thrust fluctuation)
     state = nature.state_effects(world.effects)
-    reachable = protocol.evaluate(sim.oracle(state, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra),
+    reachable = protocol.evaluate(sim.oracle(state, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra,
+                                             compile=setup.sim.compile),
                                    test, horizon=horizon).simerr if state != world.effects else r.oracle.simerr
     named = [f.name for f in r.findings if f.verdict == "named"]
     ambiguous = [list(f.alternatives) for f in r.findings if f.verdict == "ambiguous"]

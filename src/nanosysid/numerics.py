@@ -100,10 +100,15 @@ def compiled(fn, *, setting: str, dynamic: bool = False):
 def quiet_tracing() -> Iterator[None]:
     """Inside the block, dynamo's warning that it traces through a ``functools`` cache is not
     shown: the compiled code reads its constants (the mixer, gravity) through one, which is
-    traced once and harmless."""
+    traced once and harmless; and a compiled function may have up to 256 graphs (each batch
+    size, set of world effects and user wrench is one), never falling back to the eager code
+    (other bytes) past torch's default 8: past 256 it fails."""
     import warnings
 
-    with warnings.catch_warnings():
+    import torch._dynamo.config as dynamo_config
+
+    with warnings.catch_warnings(), dynamo_config.patch(recompile_limit=max(dynamo_config.recompile_limit, 256),
+                                                        fail_on_recompile_limit_hit=True):
         warnings.filterwarnings("ignore", message=".*lru_cache.*", category=UserWarning)
         yield
 

@@ -73,9 +73,10 @@ def _physics(*, angular_dynamics: bool, name: str) -> Callable[..., Predictor]:
 
 
 def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: float = 0.01,
-            rotor_delay: float | None = None, seed: int = 0) -> Predictor:
+            rotor_delay: float | None = None, seed: int = 0, compile: bool = True) -> Predictor:
     eff = None if effects is None else dict(effects)
-    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay, seed=int(seed))
+    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay, seed=int(seed),
+                      compile=compile)
 
 
 def _learned(*, checkpoint: str, **training: Any) -> Predictor:

@@ -90,7 +90,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("models.*.kind", TEXT), ("models.*.artifact", TEXT), ("models.*.checkpoint", TEXT), ("models.*.model", TEXT),
     # (``*`` spans dots: models.*.dt is also phys_res's models.phys_res.physics.dt)
     ("models.*.identified", TEXT_OR_NULL), ("models.*.dt", POSITIVE), ("models.*.substeps", COUNT),
-    ("models.oracle.effects.*", NONNEG), ("models.*.rotor_delay", NONNEG_OR_NULL),
+    ("models.oracle.effects.*", NONNEG), ("models.*.rotor_delay", NONNEG_OR_NULL), ("models.oracle.compile", FLAG),
     ("models.*.network.*", FREE),
     ("models.*.train.horizon", COUNT), ("models.*.train.stride", COUNT), ("models.*.train.batch_size", COUNT),
     ("models.*.train.epochs", COUNT), ("models.*.train.patience", NONNEG_COUNT), ("models.*.train.compile", FLAG),
@@ -116,7 +116,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("discover.savgol_window", COUNT), ("discover.savgol_order", NONNEG_COUNT),
     ("discover.delay_step", POSITIVE), ("discover.delay_max", NONNEG),
     ("discover.oracle.dt", POSITIVE), ("discover.oracle.substeps", COUNT), ("discover.oracle.effects.*", NONNEG),
-    ("discover.oracle.rotor_delay", NONNEG_OR_NULL), ("discover.oracle.*", TEXT),
+    ("discover.oracle.rotor_delay", NONNEG_OR_NULL), ("discover.oracle.compile", FLAG), ("discover.oracle.*", TEXT),
     ("discover.oracle", FREE),  # a model's block, or null where no oracle applies (real data)
     # the campaign and the launcher
     ("campaign.worlds", COUNT), ("campaign.chunk", COUNT), ("campaign.duration", POSITIVE),

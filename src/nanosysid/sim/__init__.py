@@ -83,14 +83,15 @@ def simulate_flight(
 
 def oracle(effects: Mapping[str, float] | None = None, *, vehicle: Vehicle | None = None, substeps: int = 4,
            dt: float = 0.01, rotor_delay: float | None = None, seed: int = 0,
-           extra_wrench: ExtraWrench | None = None) -> Oracle:
+           extra_wrench: ExtraWrench | None = None, compile: bool = True) -> Oracle:
     """A predictor for :func:`nanosysid.protocol.evaluate` with the true dynamics of the world.
 
     ``rotor_delay`` (s) is the delay of the rotor speeds in the data behind the true ones; by
     default the ``telemetry_delay`` effect's, as in the simulator's direct output. Flights from
     the data pipeline have the motor stream aligned already: 0. ``seed`` is the simulation's:
     with it the oracle replays each flight's turbulence. ``extra_wrench`` is the user-supplied
-    wrench the flights were simulated with.
+    wrench the flights were simulated with. ``compile``: its derivative runs compiled, as the
+    simulator's step (``sim.flight.compile``); false runs it eagerly.
     """
     return Oracle(_world(effects), vehicle, dt=dt, substeps=substeps, rotor_delay=rotor_delay, seed=seed,
-                  extra_wrench=extra_wrench)
+                  extra_wrench=extra_wrench, compile=compile)

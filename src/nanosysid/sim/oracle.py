@@ -7,6 +7,11 @@ the simulation's seed and the user-supplied wrench at the right times. What it s
 know is the measurement noise on ``y0`` and on ``u``, the rotor speeds between samples (it
 interpolates linearly), and, with ``telemetry_delay``, the last rotor speeds of a window, which
 the delay pushes past its end (it holds the last known one).
+
+By default its derivative (the world's wrench and the rigid body) runs compiled, as the
+simulator's step does (:func:`nanosysid.numerics.compiled`): one graph for every world, the
+windows in blocks of one size, a user's wrench added outside it. Its predictions differ from the
+eager ones by rounding; a window's are the same bytes whatever batch it comes in.
 """
 
 from __future__ import annotations
@@ -19,7 +24,7 @@ import torch
 from nanosysid import dynamics
 from nanosysid.dataio import parse_flight_name
 from nanosysid.errors import PredictionError
-from nanosysid.numerics import LOOP_THREADS, threads
+from nanosysid.numerics import LOOP_THREADS, compiled, quiet_tracing, threads
 from nanosysid.rollout import advance_inputs, as_tensor
 from nanosysid.sim.simulator import flight_key
 from nanosysid.sim.world import ExtraWrench, Nature, World
@@ -35,7 +40,8 @@ class Oracle:
     timed = True
 
     def __init__(self, world: World, vehicle: Vehicle | None = None, *, dt: float = 0.01, substeps: int = 4,
-                 rotor_delay: float | None = None, seed: int = 0, extra_wrench: ExtraWrench | None = None) -> None:
+                 rotor_delay: float | None = None, seed: int = 0, extra_wrench: ExtraWrench | None = None,
+                 compile: bool = True) -> None:
         self.world = world
         # delay (s) of the rotor speeds in u behind the true ones: the telemetry_delay effect for
         # the simulator's direct output, 0 after the data pipeline has aligned the motor stream
@@ -45,13 +51,15 @@ class Oracle:
         self.substeps = substeps
         self.seed = seed
         self.extra_wrench = extra_wrench
+        self.compile = compile
         params = self.vehicle.dynamics_kwargs()
         params["inertia"] = world.inertia(self.vehicle)
         self._f = functools.partial(dynamics.quad_dynamics, **params)
 
-    def _nature(self, flight: str | None, t_end: float) -> Nature:
+    def _nature(self, flight: str | None, t_end: float, *, complete: bool = False) -> Nature:
         """The world's wrench on one flight: its realisation of the time-varying effects replayed
-        from its name."""
+        from its name (``complete``: every effect computed and the user's wrench left out, as the
+        compiled derivative takes them)."""
         disturbance = None
         if self.world.timed:
             if flight is None:
@@ -59,7 +67,8 @@ class Oracle:
                                       "with flight=<its name> and t0 (protocol.evaluate does)")
             trajectory, run = parse_flight_name(flight)
             disturbance = self.world.disturbance(flight_key(self.seed, trajectory, run), t_end)
-        return Nature([self.world], self.vehicle, disturbances=[disturbance], extra=self.extra_wrench)
+        return Nature([self.world], self.vehicle, disturbances=[disturbance],
+                      extra=None if complete else self.extra_wrench, complete=complete)
 
     @torch.no_grad()
     @threads(LOOP_THREADS)
@@ -68,13 +77,19 @@ class Oracle:
         om = advance_inputs(as_tensor(u, torch.float64), self.rotor_delay / self.dt)  # true speeds (B, H, 4)
         H = om.shape[1]
         t = None if t0 is None else as_tensor(t0, torch.float64).reshape(-1)
-        nature = self._nature(flight, 1.0 if t is None else float(t.max()) + (H + 2) * self.dt)
-        if nature.timed and t is None:
+        if (self.world.timed or self.extra_wrench is not None) and t is None:
             raise PredictionError("the oracle's world depends on time (random effects or an extra wrench): call it with "
                                   "t0=<each window's start, s> (protocol.evaluate does)")
+        t_end = 1.0 if t is None else float(t.max()) + (H + 2) * self.dt
         # rotor speeds move linearly from one sample to the next; the last one is held
         om_next = torch.cat((om[:, 1:], om[:, -1:]), dim=1)
         om_dot = (om_next - om) / self.dt
+        if self.compile:
+            nature = self._nature(flight, t_end, complete=True)
+            t = torch.zeros(len(y), dtype=torch.float64) if t is None else t
+            return torch.cat([self._compiled_rollout(nature, *block) for block in
+                              zip(*(a.split(BLOCK) for a in (y, om, om_dot, t)))]).numpy()
+        nature = self._nature(flight, t_end)
         out = []
         for k in range(H):
             def f(x, w_rot, tk=None, od=om_dot[:, k]):
@@ -88,3 +103,48 @@ class Oracle:
                                    t=None if t is None else t + k * self.dt)
             out.append(y)
         return torch.stack(out, dim=1).numpy()
+
+    def _compiled_rollout(self, nature: Nature, y, om, om_dot, t):
+        """The rollout of at most :data:`BLOCK` windows through the compiled derivative, padded
+        to a block's size (a power of two below it) with copies of the last window."""
+        n = len(y)
+        size = BLOCK if n > BLOCK // 2 else max(8, 1 << (n - 1).bit_length())
+
+        def padded(a):
+            return torch.cat((a, a[-1:].expand(size - n, *a.shape[1:]))).contiguous() if size > n else a
+
+        y, om, om_dot, t = (padded(a) for a in (y, om, om_dot, t))
+        derivative = _compiled_derivative()
+        base = functools.partial(dynamics.quad_dynamics, **{**self.vehicle.dynamics_kwargs(), "inertia": nature.inertia})
+        extra = self.extra_wrench
+        out = []
+        with quiet_tracing():
+            for k in range(om.shape[1]):
+                def f(x, w_rot, tk, od=om_dot[:, k]):
+                    push = torch.zeros_like(x[:, :6]) if extra is None else torch.cat(extra(tk, x, w_rot, od), -1)
+                    return derivative(x, w_rot, tk, od, push, nature=nature, base=base)
+
+                def om_mid(j, h, k=k):
+                    return om[:, k] + om_dot[:, k] * (j + 0.5) * h
+
+                y = dynamics.integrate(f, y, om_mid, dt=self.dt, substeps=self.substeps, t=t + k * self.dt)
+                out.append(y[:n])
+        return torch.stack(out, dim=1)
+
+
+# windows the compiled derivative takes at once: a batch is cut into blocks of this size (a
+# smaller batch is padded to a power of two), so that a few shapes, each a compile, serve
+# flights of any length
+BLOCK = 2048
+
+
+def _derivative(x, w_rot, t, om_dot, push, *, nature: Nature, base):
+    """``dx/dt`` of the true body: the world's wrench at times ``t (B,)`` plus ``push (B, 6)``
+    (the user's force and torque, body frame), on the rigid body ``base``."""
+    force, torque = nature.wrench(t, x, w_rot, om_dot)
+    return base(x, w_rot, force_body=force + push[:, :3], torque_body=torque + push[:, 3:])
+
+
+@functools.cache
+def _compiled_derivative():
+    return compiled(_derivative, setting="models.oracle.compile")

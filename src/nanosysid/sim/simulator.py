@@ -9,7 +9,6 @@ integrators settle, and is cut to its trajectory's duration.
 
 from __future__ import annotations
 
-import contextlib
 import functools
 import logging
 from dataclasses import dataclass, field
@@ -249,7 +248,7 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
     states, cmds, wrenches = [], [], []  # state (17), rotor command (4) and the world's wrench (6) at every step
     bar = tqdm(total=n_steps, desc=f"simulate {shown} flights", unit="step", unit_scale=True,
                disable=not progress, mininterval=1.0)
-    with torch.inference_mode(), _recompiles(), quiet_tracing():
+    with torch.inference_mode(), quiet_tracing():
         # inputs made here, so that the step sees inference tensors from the first call on
         x, cmd = x.clone(), torch.zeros(B, 4, dtype=torch.float64)
         ctl = torch.cat((cstate.i_pos, cstate.i_att, cstate.prev_ew), -1)
@@ -329,17 +328,6 @@ def _compiled_advance():
     # the step's few hundred tensor operations fused into a handful of C++ loops, the same bytes
     # on every x86 machine whatever the batch (numerics.compiled)
     return compiled(_advance, setting="sim.flight.compile")
-
-
-@contextlib.contextmanager
-def _recompiles():
-    # each world-effect set, batch size and user wrench is a graph of its own: more of them than
-    # torch's default 8 must compile, never fall back to the eager step (other bytes)
-    import torch._dynamo.config as dynamo_config
-
-    with dynamo_config.patch(recompile_limit=max(dynamo_config.recompile_limit, 256),
-                             fail_on_recompile_limit_hit=True):
-        yield
 
 
 def simulate(
