@@ -487,7 +487,7 @@ def test_the_oracle_knows_turbulence_and_a_users_wrench(melons):
 def test_the_compiled_oracle_predicts_the_eager_ones_bytes_in_blocks_of_any_size(melons, monkeypatch):
     """The compiled oracle computes every effect (at strength 0 where the world has it off),
     adds the user's wrench outside its graph, cuts the windows into blocks and pads the last
-    one with copies. Against the eager oracle (only the world's effects, the whole batch at
+    one with copies (a short one runs eagerly). Against the eager oracle (only the world's effects, the whole batch at
     once) on a world of turbulence, rotor drag and inertia with a user's push: the same bytes,
     across a block's edge and in a padded block; a window alone is the same bytes as in a
     batch. A lost push, a block started at the wrong time or padding leaking into a window
@@ -495,11 +495,12 @@ def test_the_compiled_oracle_predicts_the_eager_ones_bytes_in_blocks_of_any_size
     import importlib
 
     # (``nanosysid.sim.oracle`` is the function: the module is fetched by its full name)
-    monkeypatch.setattr(importlib.import_module("nanosysid.sim.oracle"), "BLOCK", 64)  # 77 windows: a block of 64, one of 13 padded to 16
+    # blocks of 64: 109 windows are a block and 45 padded to one; 13 alone run eagerly
+    monkeypatch.setattr(importlib.import_module("nanosysid.sim.oracle"), "BLOCK", 64)
     world = {"turbulence": 1.0, "rotor_drag": 1.5, "inertia_offset": 1.0, "rotor_inertia": 1.0}
     f = melons["turbulence_wavering"]
     y0, u, _ = protocol.windows(f, 20)
-    starts = np.arange(40, 40 + 77 * 3, 3)
+    starts = np.arange(40, 40 + 109 * 3, 3)
     t0 = f.t[starts] - f.t[0]
     pred = {c: sim.oracle(world, seed=4, extra_wrench=wavering_push, compile=c)(
         y0[starts], u[starts], t0=t0, flight=f.name) for c in (False, True)}

@@ -9,9 +9,11 @@ interpolates linearly), and, with ``telemetry_delay``, the last rotor speeds of 
 the delay pushes past its end (it holds the last known one).
 
 By default its derivative (the world's wrench and the rigid body) runs compiled, as the
-simulator's step does (:func:`nanosysid.numerics.compiled`): one graph for every world, the
-windows in blocks of one size, a user's wrench added outside it. Its predictions differ from the
-eager ones by rounding; a window's are the same bytes whatever batch it comes in.
+simulator's step does (:func:`nanosysid.numerics.compiled`), wherever a call has half a block of
+windows or more (:data:`BLOCK`; fewer would not pay for the compile): one graph for every world,
+the windows in blocks of one size, a user's wrench added outside it. Inductor's code makes the
+eager operations in their order, so the predictions have been the eager ones' bytes on every
+world tried (``tests/test_sim.py``).
 """
 
 from __future__ import annotations
@@ -84,14 +86,21 @@ class Oracle:
         # rotor speeds move linearly from one sample to the next; the last one is held
         om_next = torch.cat((om[:, 1:], om[:, -1:]), dim=1)
         om_dot = (om_next - om) / self.dt
-        if self.compile:
-            nature = self._nature(flight, t_end, complete=True)
-            t = torch.zeros(len(y), dtype=torch.float64) if t is None else t
-            return torch.cat([self._compiled_rollout(nature, *block) for block in
-                              zip(*(a.split(BLOCK) for a in (y, om, om_dot, t)))]).numpy()
-        nature = self._nature(flight, t_end)
+        if not (self.compile and len(y) >= BLOCK // 2):
+            return self._rollout(self._nature(flight, t_end), y, om, om_dot, t).numpy()
+        # blocks of BLOCK windows compiled (a last one of half a block or more padded to a block),
+        # a shorter last one eagerly: one compiled shape, its compile paid where the work is large
+        complete = self._nature(flight, t_end, complete=True)
+        t = torch.zeros(len(y), dtype=torch.float64) if t is None else t
+        return torch.cat([self._compiled_rollout(complete, *b) if len(b[0]) >= BLOCK // 2
+                          else self._rollout(self._nature(flight, t_end), *b)
+                          for b in zip(*(a.split(BLOCK) for a in (y, om, om_dot, t)))]).numpy()
+
+    def _rollout(self, nature: Nature, y, om, om_dot, t):
+        """The eager rollout ``(B, H, 13)`` from ``y (B, 13)`` under true rotor speeds ``om`` and
+        their rates ``om_dot`` ``(B, H, 4)``, windows starting at ``t (B,)`` (s; None: untimed)."""
         out = []
-        for k in range(H):
+        for k in range(om.shape[1]):
             def f(x, w_rot, tk=None, od=om_dot[:, k]):
                 force, torque = nature.wrench(tk, x, w_rot, od)
                 return self._f(x, w_rot, force_body=force, torque_body=torque)
@@ -102,16 +111,15 @@ class Oracle:
             y = dynamics.integrate(f, y, om_mid, dt=self.dt, substeps=self.substeps,
                                    t=None if t is None else t + k * self.dt)
             out.append(y)
-        return torch.stack(out, dim=1).numpy()
+        return torch.stack(out, dim=1)
 
     def _compiled_rollout(self, nature: Nature, y, om, om_dot, t):
-        """The rollout of at most :data:`BLOCK` windows through the compiled derivative, padded
-        to a block's size (a power of two below it) with copies of the last window."""
+        """:meth:`_rollout` of ``BLOCK // 2`` to ``BLOCK`` windows through the compiled derivative
+        (``nature`` complete), padded to a block with copies of the last window."""
         n = len(y)
-        size = BLOCK if n > BLOCK // 2 else max(8, 1 << (n - 1).bit_length())
 
         def padded(a):
-            return torch.cat((a, a[-1:].expand(size - n, *a.shape[1:]))).contiguous() if size > n else a
+            return torch.cat((a, a[-1:].expand(BLOCK - n, *a.shape[1:]))).contiguous() if n < BLOCK else a
 
         y, om, om_dot, t = (padded(a) for a in (y, om, om_dot, t))
         derivative = _compiled_derivative()
@@ -132,9 +140,8 @@ class Oracle:
         return torch.stack(out, dim=1)
 
 
-# windows the compiled derivative takes at once: a batch is cut into blocks of this size (a
-# smaller batch is padded to a power of two), so that a few shapes, each a compile, serve
-# flights of any length
+# windows the compiled derivative takes at once: one shape, one compile, for flights of any
+# length (a 20 s flight is one block)
 BLOCK = 2048
 
 
