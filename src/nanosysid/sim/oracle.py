@@ -129,7 +129,10 @@ class Oracle:
         with quiet_tracing():
             for k in range(om.shape[1]):
                 def f(x, w_rot, tk, od=om_dot[:, k]):
-                    push = torch.zeros_like(x[:, :6]) if extra is None else torch.cat(extra(tk, x, w_rot, od), -1)
+                    if extra is None:
+                        push = torch.zeros_like(x[:, :6])
+                    else:  # (a user's wrench may be one for every window: broadcast as the eager sum does)
+                        push = torch.cat([a.expand(len(x), 3) for a in extra(tk, x, w_rot, od)], -1)
                     return derivative(x, w_rot, tk, od, push, nature=nature, base=base)
 
                 def om_mid(j, h, k=k):
