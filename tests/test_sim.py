@@ -512,6 +512,13 @@ def test_the_compiled_oracle_predicts_the_eager_ones_bytes_in_blocks_of_any_size
     without = sim.oracle(world, seed=4)(y0[starts], u[starts], t0=t0, flight=f.name)
     assert np.abs(without[:, -1, :3] - pred[True][:, -1, :3]).max() > 1e-4
 
+    def steady(t, x, omega, omega_dot):  # one wrench for every window, as the eager sum broadcasts it
+        return torch.tensor([0.01, 0.0, 0.0], dtype=torch.float64), torch.zeros(3, dtype=torch.float64)
+
+    pred = [sim.oracle(world, seed=4, extra_wrench=steady, compile=c)(y0[starts], u[starts], t0=t0, flight=f.name)
+            for c in (False, True)]
+    assert np.array_equal(pred[0], pred[1]) and np.abs(pred[1] - without).max() > 1e-4
+
 
 def test_oracle_is_the_physical_limit(melons):
     world = {"rotor_drag": 1.0, "com_offset": 1.0, "motor_asymmetry": 1.0}
