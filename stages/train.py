@@ -27,7 +27,8 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
             optimizer=optimizer, scheduler=scheduler,
             horizon=int(t.horizon), stride=int(t.stride), batch_size=int(t.batch_size), epochs=int(t.epochs),
             patience=int(t.patience), seed=int(t.seed), val_runs=plain(t.val_runs), log_dir=log_dir,
-            accelerator=str(cfg.trainer.accelerator), devices=plain(cfg.trainer.devices), compile=bool(t.compile))
+            accelerator=str(cfg.trainer.accelerator), devices=plain(cfg.trainer.devices), compile=bool(t.compile),
+            threads=int(t.threads))
         (log_dir / "summary.json").write_text(json_text(summary))
     return summary
 

@@ -124,6 +124,27 @@ def test_short_training_lowers_the_loss_and_is_deterministic(arch, flights, tmp_
     assert c1["extra"]["best_val_loss"] == s1["best_val_loss"]
 
 
+def test_the_fit_runs_on_its_own_thread_count_whatever_the_callers_and_gives_it_back(flights, tmp_path, monkeypatch):
+    seen = []
+    real = SysIdModule.loss
+
+    def spy(self, batch):
+        seen.append(torch.get_num_threads())
+        return real(self, batch)
+
+    monkeypatch.setattr(SysIdModule, "loss", spy)
+    before = torch.get_num_threads()
+    try:
+        for caller in (2, 3):
+            torch.set_num_threads(caller)
+            train_model(NETWORKS["residual"], flights, tmp_path / f"{caller}.pt", progress=False, threads=1, **QUICK)
+            assert torch.get_num_threads() == caller
+    finally:
+        torch.set_num_threads(before)
+    assert seen and set(seen) == {1}  # the validation's start, every batch and every validation
+    assert (tmp_path / "2.pt").read_bytes() == (tmp_path / "3.pt").read_bytes()
+
+
 def test_checkpoint_round_trip_is_weights_only(tmp_path):
     model = make("lstm")
     model.y_std.fill_(2.0)

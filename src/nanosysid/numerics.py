@@ -25,7 +25,8 @@ __all__ = ["PINNED", "THREADS", "LOOP_THREADS", "pin", "pinned_environment", "th
 
 # Threads split sums (a matrix product's, a reduction's) into partial sums whose order sets the
 # last bits: the count is fixed, whatever the machine's cores; NANOSYSID_THREADS changes it (and
-# with it the bytes of trained models).
+# with it the last bits of the outputs that use several). Training has its own count
+# (``train.threads``), loops over time on small tensors theirs (:data:`LOOP_THREADS`).
 THREADS = os.environ.get("NANOSYSID_THREADS", "2")
 
 PINNED: dict[str, str] = {

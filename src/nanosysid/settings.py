@@ -94,6 +94,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("models.*.network.*", FREE),
     ("models.*.train.horizon", COUNT), ("models.*.train.stride", COUNT), ("models.*.train.batch_size", COUNT),
     ("models.*.train.epochs", COUNT), ("models.*.train.patience", NONNEG_COUNT), ("models.*.train.compile", FLAG),
+    ("models.*.train.threads", COUNT),
     ("models.*.train.optimizer.lr", POSITIVE), ("models.*.train.val_runs", COUNT),
     ("models.*.train.optimizer.*", FREE), ("models.*.train.scheduler", FREE), ("models.*.train.scheduler.*", FREE),
     ("learned", TEXT), ("trainer.devices", COUNT_OR_AUTO),

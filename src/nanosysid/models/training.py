@@ -26,7 +26,7 @@ from nanosysid.errors import ConfigError
 from nanosysid.identify import identified_vehicle
 from nanosysid.models.learned import SequenceModel, build_model, save_checkpoint, to_tilde
 from nanosysid.models.physics import PhysicsStep
-from nanosysid.numerics import quiet_tracing
+from nanosysid.numerics import quiet_tracing, threads as torch_threads
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["SysIdModule", "window_tensors", "train_model", "network_spec", "physics_base", "optimiser_parts"]
@@ -115,6 +115,7 @@ def train_model(
     accelerator: str = "auto",
     devices: int | str = 1,
     compile: bool = True,
+    threads: int = 1,
     progress: bool = True,
 ) -> dict[str, Any]:
     """Train one model and save its checkpoint to ``out``.
@@ -132,68 +133,71 @@ def train_model(
         log_dir: Where dvclive writes the per-epoch metrics (none if None).
         compile: Run a physics base compiled (:meth:`SequenceModel.compile_base`); its bytes
             differ from the eager one's by rounding, so the trained weights do too.
+        threads: torch's threads for the whole fit, whatever the caller's count (restored
+            after): the count splits sums, so it is part of what sets the weights' bytes.
 
     Returns:
         A summary (epochs run, best validation loss, parameter count).
     """
-    pl.seed_everything(int(seed), workers=True)
-    torch.use_deterministic_algorithms(True)
-    val_runs = set(val_runs)
-    fit_f = [f for f in flights if f.run not in val_runs]
-    val_f = [f for f in flights if f.run in val_runs]
-    if not fit_f or not val_f:
-        raise ConfigError(f"train: need flights both for fitting and for validation (val_runs {sorted(val_runs)}; "
-                          f"runs present: {sorted({f.run for f in flights})})")
-    model = build_model(network, physics)
-    model.set_statistics(*_statistics(fit_f, model))
-    if compile:
-        model.compile_base(setting="train.compile")
-    ds_fit = window_tensors(fit_f, int(horizon), int(stride))
-    ds_val = window_tensors(val_f, int(horizon), int(stride))
-    gen = torch.Generator().manual_seed(int(seed))
-    dl_fit = DataLoader(ds_fit, batch_size=int(batch_size), shuffle=True, generator=gen)
-    dl_val = DataLoader(ds_val, batch_size=4096)
-    module = SysIdModule(model, optimizer=optimizer, scheduler=scheduler)
-    logger = False
-    if log_dir is not None:
-        from dvclive.lightning import DVCLiveLogger
+    with torch_threads(int(threads)):
+        pl.seed_everything(int(seed), workers=True)
+        torch.use_deterministic_algorithms(True)
+        val_runs = set(val_runs)
+        fit_f = [f for f in flights if f.run not in val_runs]
+        val_f = [f for f in flights if f.run in val_runs]
+        if not fit_f or not val_f:
+            raise ConfigError(f"train: need flights both for fitting and for validation (val_runs {sorted(val_runs)}; "
+                              f"runs present: {sorted({f.run for f in flights})})")
+        model = build_model(network, physics)
+        model.set_statistics(*_statistics(fit_f, model))
+        if compile:
+            model.compile_base(setting="train.compile")
+        ds_fit = window_tensors(fit_f, int(horizon), int(stride))
+        ds_val = window_tensors(val_f, int(horizon), int(stride))
+        gen = torch.Generator().manual_seed(int(seed))
+        dl_fit = DataLoader(ds_fit, batch_size=int(batch_size), shuffle=True, generator=gen)
+        dl_val = DataLoader(ds_val, batch_size=4096)
+        module = SysIdModule(model, optimizer=optimizer, scheduler=scheduler)
+        logger = False
+        if log_dir is not None:
+            from dvclive.lightning import DVCLiveLogger
 
-        logger = DVCLiveLogger(dir=str(log_dir), save_dvc_exp=False, dvcyaml=None, report=None)
-    stop = pl.callbacks.EarlyStopping("val/loss", patience=int(patience), mode="min")
-    # the untrained model is a candidate too: phys_res starts as the physics model, and
-    # training never hands back something worse on the validation flights than its start
-    with torch.no_grad(), quiet_tracing():
-        start = float(np.mean([module.loss(b).item() for b in dl_val]))
-    best = _KeepBest(start, model)
-    from lightning_fabric.utilities.exceptions import MisconfigurationException
+            logger = DVCLiveLogger(dir=str(log_dir), save_dvc_exp=False, dvcyaml=None, report=None)
+        stop = pl.callbacks.EarlyStopping("val/loss", patience=int(patience), mode="min")
+        # the untrained model is a candidate too: phys_res starts as the physics model, and
+        # training never hands back something worse on the validation flights than its start
+        with torch.no_grad(), quiet_tracing():
+            start = float(np.mean([module.loss(b).item() for b in dl_val]))
+        best = _KeepBest(start, model)
+        from lightning_fabric.utilities.exceptions import MisconfigurationException
 
-    try:
-        trainer = pl.Trainer(
-            max_epochs=int(epochs), accelerator=accelerator, devices=devices, deterministic=True, logger=logger,
-            callbacks=[stop, best], enable_checkpointing=False, enable_progress_bar=progress,
-            enable_model_summary=False, num_sanity_val_steps=0,
-        )
-    except MisconfigurationException as e:
-        # Lightning's word for an accelerator or a device count this machine does not have
-        first = str(e).split(". ")[0].strip("`")
-        raise ConfigError(f"train: trainer.accelerator={accelerator}, trainer.devices={devices}: {first} on this "
-                          "machine; set trainer.accelerator=auto (or cpu)") from None
-    with quiet_tracing():  # the training graph (with gradients) is traced at the first batch
-        trainer.fit(module, dl_fit, dl_val)
-    # a diverged run is no model: its best epoch would silently be the untrained start
-    if best.last is not None and not (best.last <= DIVERGED * start):
-        raise ConfigError(f"train: training diverged (validation loss {best.last:.4g} after epoch "
-                          f"{trainer.current_epoch}, {start:.4g} untrained); lower the learning rate (the "
-                          f"model's optimizer.lr, now {getattr(optimizer, 'keywords', {}).get('lr', 'the default')}) "
-                          "or check the data; no model was written")
-    model.load_state_dict(best.state)
-    model.cpu()
-    n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)
-    summary = {"epochs": trainer.current_epoch, "best_val_loss": best.value, "params": n_params,
-               "fit_windows": len(ds_fit), "val_windows": len(ds_val)}
-    save_checkpoint(model, network, out, extra=summary)
-    log.info("trained %s: %s", network["name"], summary)
-    return summary
+        try:
+            trainer = pl.Trainer(
+                max_epochs=int(epochs), accelerator=accelerator, devices=devices, deterministic=True, logger=logger,
+                callbacks=[stop, best], enable_checkpointing=False, enable_progress_bar=progress,
+                enable_model_summary=False, num_sanity_val_steps=0,
+            )
+        except MisconfigurationException as e:
+            # Lightning's word for an accelerator or a device count this machine does not have
+            first = str(e).split(". ")[0].strip("`")
+            raise ConfigError(f"train: trainer.accelerator={accelerator}, trainer.devices={devices}: {first} on this "
+                              "machine; set trainer.accelerator=auto (or cpu)") from None
+        with quiet_tracing():  # the training graph (with gradients) is traced at the first batch
+            trainer.fit(module, dl_fit, dl_val)
+        # a diverged run is no model: its best epoch would silently be the untrained start
+        if best.last is not None and not (best.last <= DIVERGED * start):
+            raise ConfigError(f"train: training diverged (validation loss {best.last:.4g} after epoch "
+                              f"{trainer.current_epoch}, {start:.4g} untrained); lower the learning rate (the "
+                              f"model's optimizer.lr, now {getattr(optimizer, 'keywords', {}).get('lr', 'the default')}) "
+                              "or check the data; no model was written")
+        model.load_state_dict(best.state)
+        model.cpu()
+        n_params = sum(p.numel() for p in model.parameters() if p.requires_grad)
+        summary = {"epochs": trainer.current_epoch, "best_val_loss": best.value, "params": n_params,
+                   "fit_windows": len(ds_fit), "val_windows": len(ds_val)}
+        save_checkpoint(model, network, out, extra=summary)
+        log.info("trained %s: %s", network["name"], summary)
+        return summary
 
 
 DIVERGED = 10.0  # a last validation loss this many times the untrained one is a diverged run

@@ -1,0 +1,50 @@
+"""Training of the three learned models on the pipeline's training flights with their own settings
+(`models.<name>.train`), on one torch thread (the product's `train.threads`) against two (the
+pinned count of the rest of the pipeline), a few epochs each, in the same run: seconds and CPU
+seconds per epoch."""
+
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+
+from omegaconf import OmegaConf
+
+from nanosysid import protocol
+from nanosysid.config import load_params
+from nanosysid.models.training import network_spec, optimiser_parts, physics_base, train_model
+
+EPOCHS = 3
+MODELS = ("residual", "phys_res", "lstm")
+
+
+def _fit(cfg, name: str, threads: int, out: Path) -> tuple[float, float]:
+    m = OmegaConf.to_container(cfg.models[name], resolve=True)
+    t = m["train"]
+    optimizer, scheduler = optimiser_parts(t["optimizer"], t["scheduler"])
+    bench = protocol.load(cfg.paths.split, horizon=int(t["horizon"]))
+    wall, cpu = time.perf_counter(), time.process_time()
+    train_model(network_spec(m), bench.train, out, physics=physics_base(m), optimizer=optimizer, scheduler=scheduler,
+                horizon=int(t["horizon"]), stride=int(t["stride"]), batch_size=int(t["batch_size"]), epochs=EPOCHS,
+                patience=EPOCHS, seed=int(t["seed"]), val_runs=t["val_runs"], accelerator="cpu", devices=1,
+                compile=bool(t["compile"]), threads=threads, progress=False)
+    return (time.perf_counter() - wall) / EPOCHS, (time.process_time() - cpu) / EPOCHS
+
+
+def main() -> dict[str, float]:
+    cfg = load_params()
+    figures = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in MODELS:
+            ours = int(cfg.models[name].train.threads)
+            (w1, c1), (w2, c2) = (_fit(cfg, name, n, Path(tmp) / f"{name}{n}.pt") for n in (ours, 2))
+            print(f"{name:9s} {ours} thread: {w1:.2f} s/epoch, {c1:.2f} CPU s/epoch;  2 threads: {w2:.2f} s/epoch "
+                  f"({w2 / w1:.2f}x), {c2:.2f} CPU s/epoch ({c2 / c1:.2f}x)")
+            figures.update({f"{name}_s": w1, f"{name}_cpu_s": c1, f"{name}_two_threads_s": w2,
+                            f"{name}_two_threads_cpu_s": c2, f"{name}_cpu_ratio": c2 / c1})
+    return figures
+
+
+if __name__ == "__main__":
+    main()
