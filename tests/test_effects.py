@@ -98,3 +98,27 @@ def test_physical_signs_and_kinds():
     assert {n for n, e in effects.LIBRARY.items() if e.kind == "correction"} == {"inertia", "arm"}
     v = effects.apply_corrections(Vehicle(), {"inertia": [1e-6, 2e-6, 3e-6], "arm": [0.001]})
     assert v.inertia == pytest.approx((2.4951e-5, 2.5951e-5, 3.5347e-5)) and v.arm == pytest.approx(0.03635)
+
+
+def test_the_columns_side_by_side_times_theta_are_the_c_paths_wrench_of_every_entry():
+    # effects.wrench is the generated C's path: each entry's force and torque summed scalar by
+    # scalar from its own columns; the regression's and the rollout's path lays every entry's
+    # columns into one (6, P) matrix, so a column in the wrong row or place, a constant lost or
+    # a zero that is not one shows as a different wrench
+    rng = np.random.default_rng(7)
+    x, om = _inputs(rng, 40)
+    om_dot = torch.from_numpy(rng.normal(0, 2000, (40, 4)))
+    v = Vehicle()
+    names = [n for n, e in effects.LIBRARY.items() if e.columns is not None]
+    names += [effects.NOMINAL.name, effects.term_name("F_x", "1"), effects.term_name("tau_y", "v_x*w_z")]
+    theta = rng.normal(0, 1, sum(effects.entry(n).n_columns for n in names))
+    expected = torch.zeros(40, 6, dtype=torch.float64)
+    sg = effects.signals(x, om, om_dot)
+    for name, th in effects.split_coefficients(names, theta).items():
+        force, torque = effects.wrench(name, th, sg, v)
+        for c, total in enumerate(force + torque):
+            expected[:, c] += total
+    got = effects.features(names, x, om, om_dot, v) @ torch.from_numpy(theta)
+    assert torch.allclose(got, expected, rtol=1e-12, atol=1e-12 * expected.abs().max().item())
+    one = effects.features(names, x[3], om[3], om_dot[3], v)  # one sample, unbatched
+    assert torch.allclose(one @ torch.from_numpy(theta), expected[3], rtol=1e-12, atol=1e-12 * expected.abs().max().item())

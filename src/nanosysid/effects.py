@@ -398,12 +398,32 @@ def features(names: Sequence[str], x: Tensor, om: Tensor, om_dot: Tensor, vehicl
     """The columns of the named effects side by side, ``(..., 6, sum P)``: the regression's
     features, and with coefficients ``theta`` the augmented model's wrench ``features @ theta``."""
     sg = signals(x, om, om_dot)
-    zero = torch.zeros(x.shape[:-1], dtype=x.dtype, device=x.device)
-    rows: list[list[Tensor]] = [[] for _ in range(6)]
+    # most entries are the constant 0: the output starts as zeros, and the signal columns and the
+    # other constants go in with one copy each (the regression's and every rollout step's cost)
+    cols: list[Tensor] = []
+    at: list[tuple[int, int]] = []
+    consts: list[float] = []
+    const_at: list[tuple[int, int]] = []
+    P = 0
     for name in names:
-        for c, row in enumerate(entry(name).columns(sg, vehicle)):
-            rows[c] += [e if isinstance(e, Tensor) else zero + e for e in row]
-    return torch.stack([torch.stack(r, dim=-1) for r in rows], dim=-2)
+        rows = entry(name).columns(sg, vehicle)
+        for c, row in enumerate(rows):
+            for k, e in enumerate(row):
+                if isinstance(e, Tensor):
+                    cols.append(e)
+                    at.append((c, P + k))
+                elif e != 0.0:
+                    consts.append(float(e))
+                    const_at.append((c, P + k))
+        P += len(rows[0])
+    out = torch.zeros((*x.shape[:-1], 6 * P), dtype=x.dtype, device=x.device)
+    if cols:
+        out.index_copy_(out.dim() - 1, torch.tensor([c * P + j for c, j in at], device=x.device),
+                        torch.stack(cols, dim=-1).to(x.dtype))
+    if consts:
+        out[..., torch.tensor([c * P + j for c, j in const_at], device=x.device)] = torch.tensor(
+            consts, dtype=x.dtype, device=x.device)
+    return out.view(*x.shape[:-1], 6, P)
 
 
 def wrench(name: str, theta: Sequence[float], sg: Signals, vehicle: Vehicle) -> tuple[list[Any], list[Any]]:

@@ -19,6 +19,7 @@ import warnings
 
 import numpy as np
 import pysindy as ps
+import sklearn
 
 from nanosysid.effects import CHANNELS, TERM_SIGNALS, term_name
 
@@ -100,7 +101,8 @@ def sparse_fit(theta: np.ndarray, y: np.ndarray, *, threshold: float = THRESHOLD
     stride = stride or decorrelation(y)
     scale = np.maximum(y.std(axis=0), 1e-300)
     opt = ps.STLSQ(threshold=threshold, alpha=1e-9, normalize_columns=True, unbias=True, max_iter=20)
-    with warnings.catch_warnings():
+    # sklearn's checks of the arguments pysindy passes, thousands of times a discovery: skipped
+    with warnings.catch_warnings(), sklearn.config_context(skip_parameter_validation=True):
         warnings.simplefilter("ignore", UserWarning)  # "eliminated all coefficients": nothing to capture
         opt.fit(theta[::stride], y[::stride] / scale)
     return np.asarray(opt.coef_).reshape(y.shape[1], theta.shape[1]) * scale[:, None]
