@@ -58,17 +58,20 @@ class Oracle:
         params["inertia"] = world.inertia(self.vehicle)
         self._f = functools.partial(dynamics.quad_dynamics, **params)
 
-    def _nature(self, flight: str | None, t_end: float, *, complete: bool = False) -> Nature:
-        """The world's wrench on one flight: its realisation of the time-varying effects replayed
-        from its name (``complete``: every effect computed and the user's wrench left out, as the
-        compiled derivative takes them)."""
-        disturbance = None
-        if self.world.timed:
-            if flight is None:
-                raise PredictionError("the oracle replays each flight's turbulence and thrust fluctuations: call it "
-                                      "with flight=<its name> and t0 (protocol.evaluate does)")
-            trajectory, run = parse_flight_name(flight)
-            disturbance = self.world.disturbance(flight_key(self.seed, trajectory, run), t_end)
+    def _disturbance(self, flight: str | None, t_end: float):
+        """The world's realisation of its time-varying effects on one flight, replayed from the
+        flight's name (None for a world without them)."""
+        if not self.world.timed:
+            return None
+        if flight is None:
+            raise PredictionError("the oracle replays each flight's turbulence and thrust fluctuations: call it "
+                                  "with flight=<its name> and t0 (protocol.evaluate does)")
+        trajectory, run = parse_flight_name(flight)
+        return self.world.disturbance(flight_key(self.seed, trajectory, run), t_end)
+
+    def _nature(self, disturbance, *, complete: bool = False) -> Nature:
+        """The world's wrench on one flight (``complete``: every effect computed and the user's
+        wrench left out, as the compiled derivative takes them)."""
         return Nature([self.world], self.vehicle, disturbances=[disturbance],
                       extra=None if complete else self.extra_wrench, complete=complete)
 
@@ -86,31 +89,40 @@ class Oracle:
         # rotor speeds move linearly from one sample to the next; the last one is held
         om_next = torch.cat((om[:, 1:], om[:, -1:]), dim=1)
         om_dot = (om_next - om) / self.dt
+        disturbance = self._disturbance(flight, t_end)
         if not (self.compile and len(y) >= BLOCK // 2):
-            return self._rollout(self._nature(flight, t_end), y, om, om_dot, t).numpy()
+            return self._rollout(self._nature(disturbance), y, om, om_dot, t).numpy()
         # blocks of BLOCK windows compiled (a last one of half a block or more padded to a block),
         # a shorter last one eagerly: one compiled shape, its compile paid where the work is large
-        complete = self._nature(flight, t_end, complete=True)
+        complete = self._nature(disturbance, complete=True)
         t = torch.zeros(len(y), dtype=torch.float64) if t is None else t
         return torch.cat([self._compiled_rollout(complete, *b) if len(b[0]) >= BLOCK // 2
-                          else self._rollout(self._nature(flight, t_end), *b)
+                          else self._rollout(self._nature(disturbance), *b)
                           for b in zip(*(a.split(BLOCK) for a in (y, om, om_dot, t)))]).numpy()
 
     def _rollout(self, nature: Nature, y, om, om_dot, t):
         """The eager rollout ``(B, H, 13)`` from ``y (B, 13)`` under true rotor speeds ``om`` and
         their rates ``om_dot`` ``(B, H, 4)``, windows starting at ``t (B,)`` (s; None: untimed)."""
-        out = []
-        for k in range(om.shape[1]):
+        def derivative(k):
             def f(x, w_rot, tk=None, od=om_dot[:, k]):
                 force, torque = nature.wrench(tk, x, w_rot, od)
                 return self._f(x, w_rot, force_body=force, torque_body=torque)
+            return f
 
+        return self._horizon(derivative, y, om, om_dot, t)
+
+    def _horizon(self, derivative, y, om, om_dot, t, keep: int | None = None):
+        """The states ``(B, H, 13)`` along the horizon, one step per sample, with the derivative
+        ``derivative(k)`` of sample ``k`` and the rotor speeds moving linearly within it; the
+        first ``keep`` windows (all if None)."""
+        out = []
+        for k in range(om.shape[1]):
             def om_mid(j, h, k=k):
                 return om[:, k] + om_dot[:, k] * (j + 0.5) * h
 
-            y = dynamics.integrate(f, y, om_mid, dt=self.dt, substeps=self.substeps,
+            y = dynamics.integrate(derivative(k), y, om_mid, dt=self.dt, substeps=self.substeps,
                                    t=None if t is None else t + k * self.dt)
-            out.append(y)
+            out.append(y[:keep])
         return torch.stack(out, dim=1)
 
     def _compiled_rollout(self, nature: Nature, y, om, om_dot, t):
@@ -125,22 +137,18 @@ class Oracle:
         derivative = _compiled_derivative()
         base = functools.partial(dynamics.quad_dynamics, **{**self.vehicle.dynamics_kwargs(), "inertia": nature.inertia})
         extra = self.extra_wrench
-        out = []
+
+        def at(k):
+            def f(x, w_rot, tk, od=om_dot[:, k]):
+                if extra is None:
+                    push = torch.zeros_like(x[:, :6])
+                else:  # (a user's wrench may be one for every window: broadcast as the eager sum does)
+                    push = torch.cat([a.expand(len(x), 3) for a in extra(tk, x, w_rot, od)], -1)
+                return derivative(x, w_rot, tk, od, push, nature=nature, base=base)
+            return f
+
         with quiet_tracing():
-            for k in range(om.shape[1]):
-                def f(x, w_rot, tk, od=om_dot[:, k]):
-                    if extra is None:
-                        push = torch.zeros_like(x[:, :6])
-                    else:  # (a user's wrench may be one for every window: broadcast as the eager sum does)
-                        push = torch.cat([a.expand(len(x), 3) for a in extra(tk, x, w_rot, od)], -1)
-                    return derivative(x, w_rot, tk, od, push, nature=nature, base=base)
-
-                def om_mid(j, h, k=k):
-                    return om[:, k] + om_dot[:, k] * (j + 0.5) * h
-
-                y = dynamics.integrate(f, y, om_mid, dt=self.dt, substeps=self.substeps, t=t + k * self.dt)
-                out.append(y[:n])
-        return torch.stack(out, dim=1)
+            return self._horizon(at, y, om, om_dot, t, keep=n)
 
 
 # windows the compiled derivative takes at once: one shape, one compile, for flights of any
