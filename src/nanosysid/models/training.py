@@ -18,7 +18,7 @@ import pytorch_lightning as pl
 from hydra.utils import instantiate
 import torch
 from torch import Tensor
-from torch.utils.data import DataLoader, TensorDataset
+from torch.utils.data import BatchSampler, DataLoader, RandomSampler, SequentialSampler, TensorDataset
 
 from nanosysid.protocol import windows
 from nanosysid.dataio import Flight
@@ -154,9 +154,13 @@ def train_model(
             model.compile_base(setting="train.compile")
         ds_fit = window_tensors(fit_f, int(horizon), int(stride))
         ds_val = window_tensors(val_f, int(horizon), int(stride))
+        # each batch taken with one index per tensor, not one item at a time and stacked: the
+        # sampler DataLoader's shuffle=True builds, and the loader drawing its seed from the same
+        # generator first, give the same batches
         gen = torch.Generator().manual_seed(int(seed))
-        dl_fit = DataLoader(ds_fit, batch_size=int(batch_size), shuffle=True, generator=gen)
-        dl_val = DataLoader(ds_val, batch_size=4096)
+        dl_fit = DataLoader(ds_fit, batch_size=None, generator=gen,
+                            sampler=BatchSampler(RandomSampler(ds_fit, generator=gen), int(batch_size), drop_last=False))
+        dl_val = DataLoader(ds_val, batch_size=None, sampler=BatchSampler(SequentialSampler(ds_val), 4096, drop_last=False))
         module = SysIdModule(model, optimizer=optimizer, scheduler=scheduler)
         logger = False
         if log_dir is not None:
@@ -174,7 +178,9 @@ def train_model(
         try:
             trainer = pl.Trainer(
                 max_epochs=int(epochs), accelerator=accelerator, devices=devices, deterministic=True, logger=logger,
-                callbacks=[stop, best], enable_checkpointing=False, enable_progress_bar=progress,
+                # tqdm's bar, as the other stages': rich's redraws from a thread of its own, also into a log file
+            callbacks=[stop, best] + ([pl.callbacks.TQDMProgressBar()] if progress else []),
+            enable_checkpointing=False, enable_progress_bar=progress,
                 enable_model_summary=False, num_sanity_val_steps=0,
             )
         except MisconfigurationException as e:
