@@ -179,8 +179,8 @@ def train_model(
             trainer = pl.Trainer(
                 max_epochs=int(epochs), accelerator=accelerator, devices=devices, deterministic=True, logger=logger,
                 # tqdm's bar, as the other stages': rich's redraws from a thread of its own, also into a log file
-            callbacks=[stop, best] + ([pl.callbacks.TQDMProgressBar()] if progress else []),
-            enable_checkpointing=False, enable_progress_bar=progress,
+                callbacks=[stop, best] + ([pl.callbacks.TQDMProgressBar()] if progress else []),
+                enable_checkpointing=False, enable_progress_bar=progress,
                 enable_model_summary=False, num_sanity_val_steps=0,
             )
         except MisconfigurationException as e:
