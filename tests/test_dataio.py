@@ -69,6 +69,8 @@ def drop_col(col):
         (set_cell("wy", 17, "fast"), r"column 'wy', row 17 \(line 19\): non-numeric value 'fast'"),
         (set_cell("x", 3, "nan"), r"column 'x', row 3 \(line 5\): missing value \(NaN\)"),
         (set_cell("x", 4, ""), r"column 'x', row 4 \(line 6\): missing value \(NaN\)"),
+        (set_cell("vy", 7, " -inf"), r"column 'vy', row 7 \(line 9\): infinite value '-inf'"),
+        (lambda h, r: (h, r[:20] + [r[20][:-1]] + r[21:]), r"column 'az_body', row 20 \(line 22\): missing value \(NaN\)"),
         (set_cell("t", 30, "0.1"), r"column 't', row 30 \(line 32\): time does not increase"),
         (set_cell("qw", 12, "1.5"), r"column 'qx/qy/qz/qw', row 12 \(line 14\): quaternion norm"),
     ],
@@ -80,6 +82,22 @@ def test_bad_input_names_file_column_and_row(dataset, damage, pattern):
     with pytest.raises(DataError, match=pattern) as e:
         protocol.load(root)
     assert str(path) in str(e.value)
+
+
+def test_values_are_the_texts_correctly_rounded(dataset):
+    """Every value is the double nearest its text, as Python's ``float`` reads it: 17 significant
+    digits, long decimal expansions, exponents, subnormals, signs and padding."""
+    root, _ = dataset
+    path = root / "test" / "melon_d_run1.csv"
+    rng = np.random.default_rng(3)
+    x = rng.standard_normal(60) * 10.0 ** rng.integers(-15, 15, 60)
+    texts = ([repr(float(v)) for v in x[:20]] + [f"{v:.17g}" for v in x[20:40]] + [f"{v:.25e}" for v in x[40:50]]
+             + ["-0.0", "4.9e-324", "2.2250738585072011e-308", "0.30000000000000004", "9007199254740993",
+                " 1.5", "2.5 ", "+3", ".5", "7.", "1E3", "0.1000000000000000055511151231257827"])
+    corrupt(path, lambda h, r: (h, [row[:h.index("ax_body")] + [texts[i]] + row[h.index("ax_body") + 1:]
+                                    for i, row in enumerate(r[:len(texts)])] + r[len(texts):]))
+    got = read_flight_csv(path).extra["ax_body"][:len(texts)]
+    assert got.view(np.int64).tolist() == np.array([float(s) for s in texts]).view(np.int64).tolist()
 
 
 def test_repeated_timestamp_is_rejected(dataset):

@@ -199,6 +199,36 @@ def _where(path: Path, column: str, row: int) -> str:
     return f"{path}: column '{column}', row {row} (line {row + 2})"
 
 
+def _finite_numbers(path: Path) -> dict[str, np.ndarray] | None:
+    """Every column of a CSV whose values are all finite numbers, parsed by pandas' C reader at
+    once (correctly rounded, as ``float()``); None when any value is not, or the file is not a
+    plain CSV: :func:`_numbers` then reads it column by column to name the first bad value."""
+    try:
+        df = pd.read_csv(path, dtype=np.float64, keep_default_na=False)
+    except (ValueError, UnicodeDecodeError):  # pandas' parser errors are ValueErrors
+        return None
+    values = {col: df[col].to_numpy(dtype=np.float64, copy=True) for col in df.columns}
+    return values if all(np.isfinite(v).all() for v in values.values()) else None
+
+
+def _numbers(path: Path, col: str, text: pd.Series) -> np.ndarray:
+    """The values of column ``col`` read as text, or the :class:`DataError` of its first value
+    that is missing, not a number or infinite."""
+    raw = text.str.strip()
+    num = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
+    bad = np.isnan(num)
+    if bad.any():
+        i = int(np.argmax(bad))
+        if raw.iloc[i].lower() in ("", "nan", "na", "null", "none"):
+            raise DataError(f"{_where(path, col, i)}: missing value (NaN)")
+        raise DataError(f"{_where(path, col, i)}: non-numeric value {raw.iloc[i]!r}")
+    inf = ~np.isfinite(num)
+    if inf.any():
+        i = int(np.argmax(inf))
+        raise DataError(f"{_where(path, col, i)}: infinite value {raw.iloc[i]!r}")
+    return num
+
+
 def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
     """Read and validate one flight CSV.
 
@@ -212,8 +242,9 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
         raise DataError(f"{path}: a folder, not a flight CSV file")
     if not path.is_file():
         raise DataError(f"{path}: no such file" + (" (a broken link)" if path.is_symlink() else ""))
+    values = _finite_numbers(path)
     try:
-        df = pd.read_csv(path, dtype=str, keep_default_na=False)
+        df = pd.read_csv(path, dtype=str, keep_default_na=False, nrows=None if values is None else 0)
         with open(path, encoding="utf-8") as fh:
             header = [c.strip() for c in fh.readline().rstrip("\r\n").split(",")]
     except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as e:
@@ -227,23 +258,9 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
             f"{path}: missing column(s) {', '.join(repr(c) for c in missing)}"
             f" (the published schema is: {', '.join(SCHEMA)})"
         )
-    values: dict[str, np.ndarray] = {}
-    for col in df.columns:
-        raw = df[col].str.strip()
-        num = pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
-        bad = np.isnan(num)
-        if bad.any():
-            i = int(np.argmax(bad))
-            text = raw.iloc[i]
-            if text.lower() in ("", "nan", "na", "null", "none"):
-                raise DataError(f"{_where(path, col, i)}: missing value (NaN)")
-            raise DataError(f"{_where(path, col, i)}: non-numeric value {text!r}")
-        inf = ~np.isfinite(num)
-        if inf.any():
-            i = int(np.argmax(inf))
-            raise DataError(f"{_where(path, col, i)}: infinite value {raw.iloc[i]!r}")
-        values[col] = num
-    n = len(df)
+    if values is None:
+        values = {col: _numbers(path, col, df[col]) for col in df.columns}
+    n = len(next(iter(values.values()))) if values else 0
     if n < min_rows:
         raise DataError(f"{path}: {n} rows, fewer than the {min_rows} one window needs")
     t = values["t"]

@@ -36,8 +36,6 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.signal import savgol_filter
-from scipy.stats import t as student_t
 
 from nanosysid.dataio import atomic_file, Flight, json_text, read_json_record
 from nanosysid.dynamics import SPIN
@@ -106,7 +104,7 @@ def _lstsq(xs: Sequence[np.ndarray], ys: Sequence[np.ndarray], intercept: bool) 
                                         np.concatenate(ys[:i] + ys[i + 1:]), rcond=None)[0][0]
                         for i in range(k)])
         se = float(np.sqrt((k - 1) / k * ((loo - loo.mean()) ** 2).sum()))
-        half = float(student_t.ppf(0.975, k - 1)) * se
+        half = _t975(k - 1) * se
         ci = (float(sol[0]) - half, float(sol[0]) + half)
     return Fit(
         coef=float(sol[0]),
@@ -131,7 +129,7 @@ def body_torque(flight: Flight, inertia: Sequence[float], *, window: int = 15, p
     """Torque (N m, body frame) ``J dw/dt + w x (J w)`` from the gyro, shape ``(T, 3)``."""
     dt = float(np.median(np.diff(flight.t)))
     w = flight.y[:, 10:13]
-    w_dot = savgol_filter(w, window, polyorder, deriv=1, delta=dt, axis=0)
+    w_dot = _derivative(w, dt, window, polyorder)
     J = np.asarray(inertia)
     return J * w_dot + np.cross(w, J * w)
 
@@ -148,7 +146,16 @@ def fit_yaw_moment(flights: Sequence[Flight], vehicle: Vehicle, *, window: int =
                   intercept=True)
 
 
+def _t975(dof: int) -> float:
+    """Student's t quantile of a two-sided 95 % interval with ``dof`` degrees of freedom."""
+    from scipy.stats import t as student_t  # here: scipy.stats costs 0.7 s, and every predictor imports this module
+
+    return float(student_t.ppf(0.975, dof))
+
+
 def _derivative(x: np.ndarray, dt: float, window: int, polyorder: int, deriv: int = 1) -> np.ndarray:
+    from scipy.signal import savgol_filter
+
     return savgol_filter(x, window, polyorder, deriv=deriv, delta=dt, axis=0)
 
 
@@ -204,7 +211,7 @@ def fit_yaw_moment_iv(flights: Sequence[Flight], vehicle: Vehicle, *, window: in
     loo = np.array([_two_stage(y[label != b], X[label != b], Z[label != b])[0] for b in units])
     n = len(units)
     se = float(np.sqrt((n - 1) / n * ((loo - loo.mean()) ** 2).sum()))
-    half = float(student_t.ppf(0.975, n - 1)) * se
+    half = _t975(n - 1) * se
     A = X / np.linalg.norm(X, axis=0)
     return Fit(
         coef=float(beta[0]),

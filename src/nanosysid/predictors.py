@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, Callable
 
-from nanosysid import sim
 from nanosysid.discover.model import load_discovered
 from nanosysid.errors import ConfigError, ExportError
 from nanosysid.export import cost as costs
@@ -74,6 +73,8 @@ def _physics(*, angular_dynamics: bool, name: str) -> Callable[..., Predictor]:
 
 def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: float = 0.01,
             rotor_delay: float | None = None, seed: int = 0, compile: bool = True) -> Predictor:
+    from nanosysid import sim  # the simulator (scipy's filters and splines) only for the oracle
+
     eff = None if effects is None else dict(effects)
     return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay, seed=int(seed),
                       compile=compile)

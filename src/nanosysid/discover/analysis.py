@@ -7,7 +7,6 @@ from typing import Any, Sequence
 
 import numpy as np
 import torch
-from scipy.signal import welch
 
 from nanosysid import protocol, so3
 from nanosysid.dataio import Flight
@@ -88,6 +87,8 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
                       "before": [_rms(b[idx == i]) for i in range(4)], "after": [_rms(a[idx == i]) for i in range(4)]}
     out["regimes"] = regimes
     # frequency bands: each channel's residual power per band, before and after
+    from scipy.signal import welch  # here: scipy.signal costs 0.6 s, and every predictor imports the package
+
     dt = float(np.median(np.diff(search.flights[0].t)))
     bands = {}
     for label, arr in (("before", b), ("after", a)):
@@ -133,6 +134,8 @@ def _where(x: np.ndarray, var: dict[str, np.ndarray], fs: float) -> tuple[str, s
         if contrast > best:
             i = int(rms.argmax())
             best, label = contrast, f"{k} {edges[i]:.3g} – {edges[i + 1]:.3g} ({contrast:.1f}x the quietest quartile)"
+    from scipy.signal import welch
+
     freq, psd = welch(x, fs=fs, nperseg=256)
     power = [psd[(freq >= lo) & (freq < hi)].sum() for lo, hi in BANDS]
     b = int(np.argmax(power))

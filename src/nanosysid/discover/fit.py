@@ -22,7 +22,6 @@ from typing import Sequence
 
 import numpy as np
 import torch
-from scipy.signal import savgol_coeffs, savgol_filter
 
 from nanosysid import effects
 from nanosysid.dynamics import rotor_wrench
@@ -45,7 +44,7 @@ _COLUMN_ENDS = np.cumsum([effects.entry(n).n_columns for n in COLUMN_ENTRIES])
 def measured_wrench(flight: Flight, vehicle: Vehicle, window: int, order: int) -> np.ndarray:
     """``[m a_IMU; J dω/dt + ω × Jω]`` in the body frame, ``(T, 6)``."""
     acc = np.column_stack([flight.extra[c] for c in ("ax_body", "ay_body", "az_body")])
-    force = vehicle.mass * savgol_filter(acc, window, order, axis=0)
+    force = vehicle.mass * _smooth(acc, window, order)
     return np.column_stack([force, body_torque(flight, vehicle.inertia, window=window, polyorder=order)])
 
 
@@ -74,6 +73,8 @@ def noise_floor(flights: Sequence[Flight], vehicle: Vehicle, window: int, order:
     themselves and carried through the Savitzky-Golay smoothing (force, nominal wrench) and
     derivative (torque) filters.
     """
+    from scipy.signal import savgol_coeffs
+
     dt = float(np.median(np.diff(flights[0].t)))
     smooth = np.sqrt((savgol_coeffs(window, order) ** 2).sum())
     deriv = np.sqrt((savgol_coeffs(window, order, deriv=1, delta=dt) ** 2).sum())
@@ -110,7 +111,7 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
     """The residual and the candidates' features of a flight, rotor speeds advanced by ``delay``."""
     dt = float(np.median(np.diff(flight.t)))
     u = advance_inputs(torch.from_numpy(flight.u)[None], delay / dt)[0].numpy()  # read delay later
-    om_dot = savgol_filter(u, window, order, deriv=1, delta=dt, axis=0)
+    om_dot = _smooth(u, window, order, deriv=1, delta=dt)
     meas = measured_wrench(flight, vehicle, window, order) if measured is None else measured
     r = meas - _smooth(nominal_wrench(u, vehicle), window, order)
     x, om, od = (torch.from_numpy(np.ascontiguousarray(v)) for v in (flight.y, u, om_dot))
@@ -125,8 +126,11 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
                       flight.t[EDGE:-EDGE])
 
 
-def _smooth(a: np.ndarray, window: int, order: int) -> np.ndarray:
-    return savgol_filter(a, window, order, axis=0)
+def _smooth(a: np.ndarray, window: int, order: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
+    # imported here: scipy.signal costs 0.6 s, and every predictor imports this package
+    from scipy.signal import savgol_filter
+
+    return savgol_filter(a, window, order, deriv=deriv, delta=delta, axis=0)
 
 
 def block_ids(data: Sequence[FlightData], block: int) -> np.ndarray:

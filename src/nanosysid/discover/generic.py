@@ -18,8 +18,6 @@ import itertools
 import warnings
 
 import numpy as np
-import pysindy as ps
-import sklearn
 
 from nanosysid.effects import CHANNELS, TERM_SIGNALS, term_name
 
@@ -37,6 +35,8 @@ class TermLibrary:
     """
 
     def __init__(self, signals: np.ndarray, degree: int = 2) -> None:
+        import pysindy as ps  # here, not above: every predictor imports this package, few fit
+
         self.mean = signals.mean(axis=0)
         self.scale = np.where(signals.std(axis=0) > 0, signals.std(axis=0), 1.0)
         self.lib = ps.PolynomialLibrary(degree=degree, include_bias=True)
@@ -98,6 +98,9 @@ def sparse_fit(theta: np.ndarray, y: np.ndarray, *, threshold: float = THRESHOLD
     count as independent) with each column of ``y`` in units of its own spread: a term stays
     when its coefficient on a unit-norm column is ``threshold`` times the scatter it must stand
     out of."""
+    import pysindy as ps
+    import sklearn
+
     stride = stride or decorrelation(y)
     scale = np.maximum(y.std(axis=0), 1e-300)
     opt = ps.STLSQ(threshold=threshold, alpha=1e-9, normalize_columns=True, unbias=True, max_iter=20)
