@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from nanosysid.repro import StageRun, critical_order, run_graph
+from nanosysid.repro import StageRun, best_order, critical_order, makespan, run_graph
 
 # a diamond under a lone stage:  a -> (b, c) -> d,  e alone
 DIAMOND = {"a": set(), "b": {"a"}, "c": {"a"}, "d": {"b", "c"}, "e": set()}
@@ -22,6 +22,31 @@ def test_the_longest_chain_of_work_starts_first():
     assert critical_order(DIAMOND, seconds) == ["a", "b", "e", "c", "d"]
     # unknown times count 1 s each: a's chain of three first, then b and c (two), ties by name
     assert critical_order(DIAMOND, {}) == ["a", "b", "c", "d", "e"]
+
+
+# make repro's shape on two cores: a chain of preprocessing (a), a campaign that needs nothing,
+# three trainings on a's output, and a report on everything
+TRAINING = {"a": set(), "camp": set(), "L": {"a"}, "P": {"a"}, "R": {"a"}, "z": {"camp", "L", "P", "R"}}
+TRAINING_S = {"a": 100, "camp": 150, "L": 400, "P": 300, "R": 250, "z": 10}
+
+
+def test_the_order_that_ends_first_is_chosen_over_the_longest_chain():
+    crit = critical_order(TRAINING, TRAINING_S)
+    assert crit[:2] == ["a", "L"]
+    # by hand, longest chain first: a 0-100 and camp 0-150; L 100-500 on a's slot, P 150-450 on
+    # camp's; R waits for P, 450-700; z 700-710
+    assert makespan(TRAINING, TRAINING_S, crit) == pytest.approx(710)
+    # the best: P 100-400 and R 400-650 on a's slot, L 150-550 on camp's; z 650-660 (the trainings'
+    # 950 s split 550 + 400 after the slots free at 100 and 150: no split ends sooner)
+    best = best_order(TRAINING, TRAINING_S)
+    assert makespan(TRAINING, TRAINING_S, best) == pytest.approx(660)
+    # and run_graph keeps to it: the stages start in the hand schedule's sequence
+    run, log, _ = _fake({s: v / 400 for s, v in TRAINING_S.items()})
+    run_graph(TRAINING, run, jobs=2, order=best, progress=False, say=lambda s: None)
+    starts = [s for what, s in log if what == "start"]
+    assert sorted(starts[:2]) == ["a", "camp"] and starts[2:] == ["P", "L", "R", "z"]
+    # without times nothing tells the orders apart: the longest chain first
+    assert best_order(TRAINING, {}) == critical_order(TRAINING, {})
 
 
 def _fake(times, fail=()):
