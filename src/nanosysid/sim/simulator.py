@@ -17,6 +17,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import torch
 import torch.nn.functional as F
+from scipy.signal import lfilter
 from tqdm.auto import tqdm
 
 from nanosysid import dynamics, so3
@@ -390,8 +391,6 @@ def velocity_drift(n: int, noise: NoiseConfig, dt: float, rng: np.random.Generat
     """``(n, 3)`` samples of the velocity estimate's slow error: first-order Gauss-Markov with
     std ``noise.vel_drift`` and correlation time ``noise.vel_drift_tau``, started in its
     stationary distribution."""
-    from scipy.signal import lfilter  # scipy.signal costs every importer of the simulator 0.6 s
-
     a = np.exp(-dt / noise.vel_drift_tau)
     drive = rng.normal(scale=noise.vel_drift * np.sqrt(1 - a * a), size=(n, 3))
     drive[0] = rng.normal(scale=noise.vel_drift, size=3)
