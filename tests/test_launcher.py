@@ -10,7 +10,7 @@ from omegaconf import OmegaConf
 
 from nanosysid import config
 from nanosysid.errors import ConfigError
-from nanosysid.launcher import Launcher, map_tasks, slurm_executor
+from nanosysid.launcher import Launcher, even_parts, map_tasks, slurm_executor
 
 ROOT = Path(__file__).resolve().parents[1]
 SLURM = OmegaConf.to_container(OmegaConf.load(ROOT / "conf" / "launcher" / "slurm.yaml"))
@@ -36,6 +36,21 @@ def test_local_workers_return_results_in_the_tasks_order():
         out = map_tasks(hypot, TASKS, Launcher(workers=workers))
         assert out == [(5.0, 1, {1}), (13.0, 1, {1}), (17.0, 1, {1})]
     assert map_tasks(hypot, TASKS[:1], Launcher(workers=1, threads=3)) == [(5.0, 3, {3})]
+
+
+@pytest.mark.parametrize("n, size, slots, sizes", [
+    (200, 15, 2, [15] * 4 + [14] * 10),  # 14 parts of 15 but the last of 5 would leave one worker 10 worlds more
+    (60, 15, 2, [15] * 4),               # already even: the same parts as fixed 15s
+    (61, 15, 2, [11] * 1 + [10] * 5),    # 5 parts of 15 -> 6 (a multiple of 2): 61 = 11 + 5 x 10
+    (5, 15, 2, [3, 2]),                  # one part would leave a worker idle
+    (1, 15, 4, [1]),                     # never an empty part
+    (0, 15, 2, []),
+    (9, 4, 1, [3, 3, 3]),                # one slot: the fewest parts of at most 4
+])
+def test_even_parts_cut_the_worlds_evenly_over_the_slots(n, size, slots, sizes):
+    parts = even_parts(n, size, slots)
+    assert [len(p) for p in parts] == sizes
+    assert [i for p in parts for i in p] == list(range(n))  # every world once, in order
 
 
 def test_slurm_executor_carries_the_configs_partition_time_and_memory(tmp_path, monkeypatch):
@@ -106,7 +121,8 @@ def test_campaign_gives_the_same_bytes_with_one_or_two_workers(tmp_path, monkeyp
     params = tmp_path / "params.yaml"
     config.compose([], out=params)
     for workers in (1, 2):
-        argv = ["--params", str(params), "campaign.worlds=2", "campaign.chunk=1", "campaign.duration=10.0",
+        # one worker: both worlds in one batch; two workers: a batch each (the tasks are even)
+        argv = ["--params", str(params), "campaign.worlds=2", "campaign.chunk=2", "campaign.duration=10.0",
                 "sim.flight.trajectories.yawsweep.duration=6.0", "launcher=local", f"launcher.workers={workers}",
                 f"campaign.out_dir={tmp_path / str(workers)}"]
         assert run_stage(campaign.main, description="", argv=argv) == 0

@@ -32,7 +32,7 @@ from nanosysid import discover, identify, protocol, sim, so3
 from nanosysid.preprocess.sync import LagEvidence, SyncConfig, motor_lag_estimate, motor_lag_evidence
 from nanosysid.effects import LIBRARY
 from nanosysid.errors import PredictionError
-from nanosysid.launcher import map_tasks
+from nanosysid.launcher import Launcher, even_parts, map_tasks
 from nanosysid.sim import EFFECTS, SimConfig
 from nanosysid.sim import world as nature
 from nanosysid.sim.simulator import collective_thrust_coefficient
@@ -382,12 +382,16 @@ def _check_chunk(worlds: Sequence[HiddenWorld], setup: Setup, horizon: int) -> l
 
 def check(worlds: Sequence[HiddenWorld], *, launcher=None, setup: Setup | None = None, horizon: int = 50, chunk: int = 4,
           progress: bool = True) -> list[dict[str, Any]]:
-    """Simulate and judge every world, ``chunk`` worlds to a task of ``launcher``
-    (:class:`nanosysid.launcher.Launcher`; None: one process here). The rows come back in the
-    worlds' order, the same whatever the launcher and its number of workers."""
+    """Simulate and judge every world, at most ``chunk`` worlds to a task of ``launcher``
+    (:class:`nanosysid.launcher.Launcher`; None: local processes, one per core), in even tasks
+    whose count is a multiple of the launcher's slots (:func:`~nanosysid.launcher.even_parts`).
+    The rows come back in the worlds' order, the same whatever the launcher, its number of
+    workers and the chunk: a world's flights are the same bytes in any batch."""
     setup = setup or Setup()
-    tasks = [(list(worlds[s:s + chunk]), setup, horizon) for s in range(0, len(worlds), chunk)]
-    parts = map_tasks(_check_chunk, tasks, launcher, progress=progress, desc=f"worlds ({chunk} a task)",
+    spans = even_parts(len(worlds), chunk, (launcher or Launcher()).slots)
+    tasks = [(list(worlds[p.start:p.stop]), setup, horizon) for p in spans]
+    size = max((len(p) for p in spans), default=0)
+    parts = map_tasks(_check_chunk, tasks, launcher, progress=progress, desc=f"worlds ({size} a task)",
                       name="nanosysid-campaign")
     return [row for part in parts for row in part]
 

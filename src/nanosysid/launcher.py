@@ -16,6 +16,7 @@ logs and the results there) and the same virtual environment at the same path.
 
 from __future__ import annotations
 
+import itertools
 import multiprocessing
 import os
 import shutil
@@ -27,7 +28,7 @@ from typing import Any, Callable, Mapping, Sequence
 from nanosysid.errors import ConfigError, JobError
 from nanosysid.numerics import threads as torch_threads
 
-__all__ = ["Launcher", "KINDS", "map_tasks", "slurm_executor"]
+__all__ = ["Launcher", "KINDS", "even_parts", "map_tasks", "slurm_executor"]
 
 KINDS = ("local", "slurm")
 
@@ -83,6 +84,11 @@ class Launcher:
         """Local processes side by side."""
         return self.workers or os.cpu_count() or 1
 
+    @property
+    def slots(self) -> int:
+        """Tasks running at once: the local processes, or the cluster's array tasks."""
+        return self.processes if self.kind == "local" else self.workers or 64
+
 
 def _pinned(fn: Callable[..., Any], count: int, args: tuple) -> Any:
     from threadpoolctl import threadpool_limits
@@ -107,7 +113,7 @@ def slurm_executor(spec: Launcher, *, name: str = "nanosysid"):
     Path(spec.folder).mkdir(parents=True, exist_ok=True)
     ex = submitit.AutoExecutor(folder=str(Path(spec.folder) / "%j"), cluster=spec.cluster)
     params: dict[str, Any] = {"name": name, "timeout_min": spec.time_min, "mem_gb": spec.mem_gb,
-                              "cpus_per_task": spec.cpus_per_task, "slurm_array_parallelism": spec.workers or 64}
+                              "cpus_per_task": spec.cpus_per_task, "slurm_array_parallelism": spec.slots}
     if spec.partition:
         params["slurm_partition"] = spec.partition
     ex.update_parameters(**params)
@@ -126,6 +132,24 @@ def _result(job, spec: Launcher) -> Any:
         last = next((line for line in reversed(lines) if "Error" in line), lines[-1] if lines else type(e).__name__)
         raise JobError(f"launcher=slurm: job {job.job_id} failed ({last.strip()}); its log is in "
                           f"{Path(spec.folder) / str(job.job_id).split('_')[0]}") from None
+
+
+def even_parts(n: int, size: int, slots: int) -> list[range]:
+    """``range(n)`` cut into consecutive parts of at most ``size``, their count the smallest
+    multiple of ``slots`` that allows (at most ``n``), their sizes differing by at most one.
+
+    Parts of exactly ``size`` leave a short last part, and a count that is not a multiple of
+    the slots leaves slots idle while the others run one part more: 200 worlds in parts of 15
+    on two workers are 14 parts, one of 5, and one worker judges 105 worlds while the other
+    judges 95; even parts give each worker 100.
+    """
+    if n <= 0:
+        return []
+    count = -(-n // size)
+    count = min(n, -(-count // slots) * slots)
+    small, extra = divmod(n, count)
+    ends = list(itertools.accumulate(small + (i < extra) for i in range(count)))
+    return [range(a, b) for a, b in zip([0, *ends[:-1]], ends)]
 
 
 def map_tasks(fn: Callable[..., Any], tasks: Sequence[tuple], spec: Launcher | None = None, *,
