@@ -59,7 +59,7 @@ deps: $(STAMP)
 REPRO_JOBS ?= 2
 repro: params toolchain
 	env $(PINNED) $(BIN)/python -m nanosysid.repro --jobs $(REPRO_JOBS) --out reports/repro.json
-	$(BIN)/python -m nanosysid.report.readme --sections results physics bench
+	$(BIN)/python -m nanosysid.report.readme --sections results rig physics bench
 
 # every benchmark's figures into reports/bench.json, and from there into the README;
 # `make bench NAMES="simulate_batch discover_speed"` reruns only those

@@ -17,10 +17,10 @@ from typing import Any, Callable, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from nanosysid.config import load_params
+from nanosysid.config import PARAMS, load_params
 from nanosysid.dataio import Flight
 from nanosysid.errors import ConfigError, UserError
-from nanosysid.guard import stage_run
+from nanosysid.guard import stage_name, stage_run
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["run_stage", "plain", "vehicle_of", "model_options", "pick_flight"]
@@ -43,14 +43,15 @@ def run_stage(
     parser.add_argument("--params", default=None, help="params file (default: params.yaml)")
     args = parser.parse_intermixed_args(argv)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
-    # the stage's name in dvc.yaml: its module's (under `python -m` the module is __main__)
+    # the stage's name in dvc.yaml: the one that runs this module on this params file (under
+    # `python -m` the module is __main__); the rig pipeline's run the same modules
     spec = getattr(sys.modules.get(main.__module__), "__spec__", None)
     module = spec.name if spec is not None else main.__module__
-    stage = module.rpartition(".")[2] + (f"@{getattr(args, name_arg)}" if name_arg else "")
+    stage = stage_name(module, args.params) + (f"@{getattr(args, name_arg)}" if name_arg else "")
     try:
         kw = {"path": args.params} if args.params else {}
         cfg: DictConfig = load_params(args.overrides, **kw)
-        with stage_run(stage, cfg):
+        with stage_run(stage, cfg, params=args.params or PARAMS):
             if name_arg:
                 main(cfg, getattr(args, name_arg))
             else:

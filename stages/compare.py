@@ -2,14 +2,17 @@
 (trajectory statistics, the naive and physics rows, the pattern of the results), and the
 simulated world's effects."""
 
+import json
 import logging
 from pathlib import Path
+
+import pandas as pd
 
 from omegaconf import DictConfig
 
 from nanosysid import identify, protocol
 from nanosysid.dataio import atomic_file, json_text
-from nanosysid.report import paper, tables
+from nanosysid.report import paper, rig, tables
 from nanosysid.report.stats import stats_markdown, trajectory_stats
 from nanosysid.report.world import nature_thrust_coefficient, world_markdown
 from stages.common import plain, run_stage, vehicle_of
@@ -18,7 +21,10 @@ log = logging.getLogger("nanosysid.compare")
 
 
 def main(cfg: DictConfig) -> None:
-    """``<paths.sim_report>/stats.md`` (and ``stats.json``: the figures and each criterion's verdict)."""
+    """``<paths.sim_report>/stats.md`` (and ``stats.json``: the figures and each criterion's verdict);
+    on the rig's real flights ``<rig.paths.report>/paper.md`` and ``paper.json``."""
+    if str(cfg.data.source) == "rig":
+        return rig_main(cfg)
     names = [m for m in paper.PAPER_MODELS if m in cfg.models]
     scores = tables.load_scores(cfg.paths.eval, names)
     bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
@@ -44,6 +50,46 @@ def main(cfg: DictConfig) -> None:
     with atomic_file(out / "stats.json") as tmp:
         tmp.write_text(json_text(comparison.to_dict()))
     log.info("compare: %s", ", ".join(f"{k}: {'yes' if v else 'no'}" for k, v in comparison.checks.items()))
+
+
+def rig_main(cfg: DictConfig) -> None:
+    """Every model beside the paper's table, the identification beside the paper's and the motor
+    alignment beside the authors', on the rig's real flights."""
+    names = list(cfg.models)
+    scores = tables.load_scores(cfg.paths.eval, names)
+    bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
+    results = rig.results_beside_paper(scores)
+    comparison = paper.compare_results({m: s for m, s in scores.items() if m in paper.PAPER_MODELS})
+    causes = rig.measured_causes(results, scores)
+    sync = json.loads((Path(cfg.preprocess.report_dir) / "sync.json").read_text())
+    logs_dir, flights = Path(cfg.rig.paths.raw), plain(cfg.rig.logs.flights)
+    authors = {}
+    for f in sorted((logs_dir / "processed").glob("*.csv")):
+        if f.stem in flights:
+            authors[flights[f.stem]] = rig.authors_alignment(pd.read_parquet(logs_dir / "raw" / f"{f.stem}.parquet"),
+                                                             pd.read_csv(f))
+    alignment, lag_rec = rig.alignment_section(sync, authors)
+    yaw_ref = rig.yaw_reference_ranges(Path(cfg.preprocess.extract_dir))
+    yaw = {f.name: rig.yaw_range(f) for f in bench.train + bench.test}
+    sim_ident = json.loads((Path(cfg.paths.sim_report) / "stats.json").read_text()).get("identification", {}).get("k_m")
+    ident, ident_rec = rig.identification_section(
+        identify.read_identified(Path(cfg.identify.out_dir) / "params.json"), yaw_ref, yaw,
+        {"paper_method": sim_ident["paper_method"], "nature": sim_ident["nature"]} if sim_ident else None)
+    parts = ["# The benchmark on the rig's real flights, beside the paper", "",
+             f"The paper's 2025-10-17 campaign ({len(bench.train)} training flights, {len(bench.test)} test flights: "
+             f"{', '.join(f.name for f in bench.test)}), read from the authors' logs and processed by this product's "
+             "own sync, filter and split; every model trained and scored here.", "",
+             rig.results_section(results, causes), ident, alignment,
+             stats_markdown(trajectory_stats(bench.train + bench.test)).replace("# ", "## ", 1),
+             paper.results_markdown(comparison)]
+    out = Path(cfg.rig.paths.report)
+    with atomic_file(out / "paper.md") as tmp:
+        tmp.write_text("\n".join(parts))
+    with atomic_file(out / "paper.json") as tmp:
+        tmp.write_text(json_text({"results": results, "causes": causes, "identification": ident_rec,
+                                  "motor_lag": lag_rec, "pattern": comparison.to_dict()}))
+    log.info("compare: %d models on the rig's flights; worse than the paper by over %.0f%%: %s", len(names),
+             100 * rig.WORSE, ", ".join(results["worse"]) or "none")
 
 
 if __name__ == "__main__":

@@ -21,10 +21,28 @@ from nanosysid.vehicle import Vehicle
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_committed_params_yaml_is_the_composition_of_conf():
-    composed = config.compose_text(conf_dir=ROOT / "conf")
-    committed = (ROOT / "params.yaml").read_text()
-    assert committed == composed, "params.yaml is stale: run `make params` and commit it"
+@pytest.mark.parametrize("root,params", sorted(config.ROOTS.items()))
+def test_committed_params_yaml_is_the_composition_of_conf(root, params):
+    composed = config.compose_text(conf_dir=ROOT / "conf", root=root)
+    committed = (ROOT / params).read_text()
+    assert committed == composed, f"{params} is stale: run `make params` and commit it"
+
+
+def test_the_rig_pipeline_shares_no_path_with_the_simulated_worlds():
+    sim = yaml.safe_load(config.compose_text(conf_dir=ROOT / "conf"))
+    rig = yaml.safe_load(config.compose_text(conf_dir=ROOT / "conf", root="rig"))
+    keys = ("preprocess.extract_dir", "preprocess.sync_dir", "preprocess.flights_dir", "preprocess.report_dir",
+            "paths.split", "paths.eval", "paths.train_logs", "identify.out_dir", "report.markdown", "visualize.out_dir",
+            "discover.out_dir", "discover.report_dir", "models.lstm.checkpoint", "models.phys_res.checkpoint")
+
+    def get(cfg, key):
+        for part in key.split("."):
+            cfg = cfg[part]
+        return cfg
+
+    assert all(get(rig, k) != get(sim, k) and get(rig, k).startswith(("processed/rig", "reports/rig", "models-rig"))
+               for k in keys)
+    assert rig["data"]["source"] == "rig" and "oracle" not in rig["models"] and set(rig["models"]) == set(rig["rig"]["artifacts"])
 
 
 @pytest.mark.parametrize("name", sorted(p.stem for p in (ROOT / "conf" / "model").glob("*.yaml")))
@@ -73,9 +91,11 @@ def test_the_schema_and_conf_name_the_same_settings():
     from nanosysid import settings
 
     used = set()
-    for overrides in ([], ["data=csv", "~model@models.oracle"], ["data=sim_direct"], ["launcher=slurm"],
-                      ["+sim.flight.gains.kp_xy=0.7", "models.residual.train.scheduler=null"]):
-        for key, _ in settings.leaves(yaml.safe_load(config.compose_text(overrides, conf_dir=ROOT / "conf"))):
+    for root, overrides in (("config", []), ("config", ["data=csv", "~model@models.oracle"]),
+                            ("config", ["data=sim_direct"]), ("config", ["launcher=slurm"]),
+                            ("config", ["+sim.flight.gains.kp_xy=0.7", "models.residual.train.scheduler=null"]),
+                            ("rig", [])):
+        for key, _ in settings.leaves(yaml.safe_load(config.compose_text(overrides, conf_dir=ROOT / "conf", root=root))):
             entry = next((i for i, (pattern, _) in enumerate(settings.SCHEMA) if fnmatch.fnmatchcase(key, pattern)), None)
             assert entry is not None, f"{key}: no kind in nanosysid.settings.SCHEMA"
             used.add(entry)

@@ -71,7 +71,8 @@ def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tm
 
     repo = tmp_path / "repo"
     repo.mkdir()
-    for item in ("dvc.yaml", "dvc.lock", "params.yaml", "conf", "stages", "src", ".dvcignore", ".gitignore"):
+    for item in ("dvc.yaml", "dvc.lock", "params.yaml", "params-rig.yaml", "conf", "stages", "src", ".dvcignore",
+                 ".gitignore"):
         (shutil.copytree if (ROOT / item).is_dir() else shutil.copy)(ROOT / item, repo / item)
     (repo / ".dvc").mkdir()
     shutil.copy(ROOT / ".dvc" / "config", repo / ".dvc" / "config")

@@ -160,3 +160,25 @@ def test_repro_times_each_stage_from_dvcs_own_lines():
     # simulate from its line (1.0) to the lock update (11.5); sync until the next stage starts
     assert record == {"stages": {"simulate": 10.5, "sync": 7.5, "train@lstm": 40.0}, "skipped": ["extract"],
                       "total_s": 61.0}
+
+
+def test_readme_real_flights_section_is_the_rig_reports_the_lock_file_records():
+    part, sources, outs = stamped(readme.RIG_BEGIN, readme.RIG_END, ["rig_compare", "rig_report"])
+    assert sources == {p: outs[p] for p in ("reports/rig/paper.md", "reports/rig/figures/mae_horizon.png")}
+    copy = re.search(r"\]\((docs/figures/[^)]+\.png)\)", part).group(1)
+    assert hashlib.md5((ROOT / copy).read_bytes()).hexdigest() == outs["reports/rig/figures/mae_horizon.png"]
+    assert "| phys_res |" in part and "| paper |" in part and "| k_F [N s²/rad²] |" in part
+
+
+def test_the_real_flights_section_is_left_alone_where_the_rig_pipeline_did_not_run(tmp_path):
+    md = tmp_path / "README.md"
+    md.write_text(f"a\n{readme.RIG_BEGIN}\nold\n{readme.RIG_END}\nb\n")
+    assert readme.update_rig(md, tmp_path / "paper.md", tmp_path / "fig.png", tmp_path / "copy.png") is None
+    assert "old" in md.read_text()
+    paper = tmp_path / "paper.md"
+    paper.write_text("# Real\n\n## The results beside the paper's table\n\nRESULTS\n\n## Identification beside the paper's"
+                     "\n\nIDENT\n\n## The motor alignment beside the authors'\n\nLAG\n\n## Trajectory statistics\n\nNO\n")
+    (tmp_path / "fig.png").write_bytes(b"png")
+    assert readme.update_rig(md, paper, tmp_path / "fig.png", tmp_path / "docs" / "copy.png")
+    text = md.read_text()
+    assert all(w in text for w in ("RESULTS", "IDENT", "LAG", "](docs/copy.png)")) and "NO" not in text and "old" not in text

@@ -6,8 +6,8 @@ Stages read ``params.yaml`` through :func:`load_params`, with Hydra-style overri
 
 Command line::
 
-    python -m nanosysid.config compose [override ...]   # write params.yaml
-    python -m nanosysid.config check                    # exit 1 if params.yaml is stale
+    python -m nanosysid.config compose [override ...]   # write params.yaml and params-rig.yaml
+    python -m nanosysid.config check                    # exit 1 if either is stale
 """
 
 from __future__ import annotations
@@ -33,6 +33,9 @@ __all__ = ["compose", "compose_text", "load_params", "select_groups", "apply_ove
 # (DVC runs them there, also in the temporary copies of `dvc exp run`)
 CONF_DIR = Path("conf")
 PARAMS = Path("params.yaml")
+# the rig pipeline's settings: conf/rig.yaml, the root config with the real flights' data and paths
+PARAMS_RIG = Path("params-rig.yaml")
+ROOTS = {"config": PARAMS, "rig": PARAMS_RIG}
 
 # old name -> new name of the settings renamed in this release; an override under an old name
 # is still accepted, with a warning, until the next one
@@ -56,19 +59,20 @@ def renamed(overrides: Sequence[str]) -> list[str]:
     return out
 
 
-def compose_text(overrides: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) -> str:
-    """The YAML text DVC would write to ``params.yaml`` for these overrides."""
+def compose_text(overrides: Sequence[str] = (), *, conf_dir: Path = CONF_DIR, root: str = "config") -> str:
+    """The YAML text DVC would write to ``params.yaml`` for these overrides (``root``: the root
+    config, ``rig`` for ``params-rig.yaml``)."""
     from dvc.utils.hydra import compose_and_dump
 
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "params.yaml"
-        compose_and_dump(out, str(Path(conf_dir).resolve()), None, "config", str(Path.cwd()), list(overrides))
+        compose_and_dump(out, str(Path(conf_dir).resolve()), None, root, str(Path.cwd()), list(overrides))
         return out.read_text(encoding="utf-8")
 
 
-def compose(overrides: Sequence[str] = (), *, out: Path = PARAMS, conf_dir: Path = CONF_DIR) -> bool:
+def compose(overrides: Sequence[str] = (), *, out: Path = PARAMS, conf_dir: Path = CONF_DIR, root: str = "config") -> bool:
     """Write the composition to ``out``; return True when the file changed."""
-    text = compose_text(renamed(overrides), conf_dir=conf_dir)
+    text = compose_text(renamed(overrides), conf_dir=conf_dir, root=root)
     out = Path(out)
     if out.exists() and out.read_text(encoding="utf-8") == text:
         return False
@@ -225,13 +229,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_args(argv)
     if args.command == "compose":
-        changed = compose(args.overrides)
-        print(f"params.yaml {'updated from' if changed else 'matches'} conf/")
+        for root, out in ROOTS.items():
+            changed = compose(args.overrides, out=out, root=root)
+            print(f"{out} {'updated from' if changed else 'matches'} conf/")
         return 0
-    text = compose_text(renamed(args.overrides))
-    if not PARAMS.exists() or PARAMS.read_text(encoding="utf-8") != text:
-        print("params.yaml differs from the composition of conf/; run `make params`", file=sys.stderr)
-        return 1
+    for root, out in ROOTS.items():
+        text = compose_text(renamed(args.overrides), root=root)
+        if not out.exists() or out.read_text(encoding="utf-8") != text:
+            print(f"{out} differs from the composition of conf/; run `make params`", file=sys.stderr)
+            return 1
     return 0
 
 

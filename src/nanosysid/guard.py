@@ -36,7 +36,7 @@ import yaml
 
 from nanosysid.errors import ConfigError
 
-__all__ = ["Claim", "claim", "stage_run", "declared", "record_path", "API"]
+__all__ = ["Claim", "claim", "stage_run", "stage_name", "declared", "record_path", "API"]
 
 API = "python"  # the writer outside any stage
 TMP = "nanosysid-"  # our temporaries: .<name>.nanosysid-<random>.tmp / .old
@@ -98,32 +98,78 @@ def _interpolate(text: str, cfg: Any, scope: dict[str, Any]) -> str | None:
         return None
 
 
-def declared(cfg: Any, dvc_yaml: str | os.PathLike = "dvc.yaml") -> dict[str, tuple[list[str], list[str]]]:
+def declared(cfg: Any, dvc_yaml: str | os.PathLike = "dvc.yaml", params: str | os.PathLike | None = None
+             ) -> dict[str, tuple[list[str], list[str]]]:
     """Every stage of ``dvc_yaml`` (``name`` or ``name@item``): its dependencies and outputs, the
-    paths resolved with ``cfg`` (the run's settings, overrides included). Empty without the file."""
-    return {k: ([p for p, _ in d], [p for p, _ in o]) for k, (d, o) in _declared(cfg, dvc_yaml).items()}
+    paths resolved with ``cfg`` (the run's settings, overrides included). Empty without the file.
+    With ``params`` (the file ``cfg`` was read from), a stage whose command reads another params
+    file (``--params``; ``params.yaml`` without) is resolved with that file's settings instead."""
+    return {k: ([p for p, _ in d], [p for p, _ in o]) for k, (d, o) in _declared(cfg, dvc_yaml, params).items()}
 
 
-def _declared(cfg: Any, dvc_yaml: str | os.PathLike) -> dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]]:
+_PARAMS_ARG = re.compile(r"--params[= ](\S+)")
+DEFAULT_PARAMS = "params.yaml"
+
+
+def _params_of(cmd: str) -> str:
+    """The params file a stage's command reads."""
+    m = _PARAMS_ARG.search(cmd)
+    return m.group(1) if m else DEFAULT_PARAMS
+
+
+def stage_name(module: str, params: str | os.PathLike | None, dvc_yaml: str | os.PathLike = "dvc.yaml") -> str:
+    """The name in ``dvc_yaml`` of the stage that runs ``python -m <module>`` on ``params`` (the
+    rig pipeline's ``rig_sync`` for ``stages.sync`` on ``params-rig.yaml``); the module's last
+    part where no stage does."""
+    path = Path(dvc_yaml)
+    want = _resolve(params or DEFAULT_PARAMS)
+    if path.is_file():
+        for name, st in ((_yaml(path.read_text()) or {}).get("stages") or {}).items():
+            cmd = str(st.get("do", st).get("cmd", ""))
+            if re.search(rf"python -m {re.escape(module)}(\s|$)", cmd) and _resolve(path.parent / _params_of(cmd)) == want:
+                return name
+    return module.rpartition(".")[2]
+
+
+def _declared(cfg: Any, dvc_yaml: str | os.PathLike, params: str | os.PathLike | None = None
+              ) -> dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]]:
     from omegaconf import OmegaConf
 
     path = Path(dvc_yaml)
     if not path.is_file():
         return {}
     stages = (_yaml(path.read_text()) or {}).get("stages", {})
-    out: dict[str, tuple[list[str], list[str]]] = {}
+    out: dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]] = {}
+    others: dict[Path, Any] = {}
+    run_params = None if params is None else _resolve(params)
     for name, st in stages.items():
-        if "foreach" in st:
-            items = OmegaConf.select(cfg, _VAR.fullmatch(str(st["foreach"])).group(1), throw_on_missing=False) \
-                if isinstance(st["foreach"], str) and _VAR.fullmatch(st["foreach"]) else st["foreach"]
-            items = OmegaConf.to_container(items, resolve=True) if OmegaConf.is_config(items) else items
-            pairs = items.items() if isinstance(items, dict) else ((i, i) for i in (items or []))
-            body = st["do"]
-            for key, item in pairs:
-                out[f"{name}@{key}"] = _paths(body, cfg, {"key": key, "item": item})
+        own = _resolve(path.parent / _params_of(str(st.get("do", st).get("cmd", ""))))
+        if run_params is not None and own != run_params:
+            if own not in others:
+                try:
+                    others[own] = OmegaConf.load(own)
+                except (OSError, ValueError):  # a pipeline whose settings are not composed here
+                    others[own] = None
+            if others[own] is None:
+                continue
+            stage_cfg = others[own]
         else:
-            out[name] = _paths(st, cfg, {})
+            stage_cfg = cfg
+        out.update(_declared_stage(name, st, stage_cfg))
     return out
+
+
+def _declared_stage(name: str, st: dict, cfg: Any) -> dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]]:
+    """One entry of ``dvc.yaml``'s stages (each item of a ``foreach``) resolved with ``cfg``."""
+    from omegaconf import OmegaConf
+
+    if "foreach" not in st:
+        return {name: _paths(st, cfg, {})}
+    items = OmegaConf.select(cfg, _VAR.fullmatch(str(st["foreach"])).group(1), throw_on_missing=False) \
+        if isinstance(st["foreach"], str) and _VAR.fullmatch(st["foreach"]) else st["foreach"]
+    items = OmegaConf.to_container(items, resolve=True) if OmegaConf.is_config(items) else items
+    pairs = items.items() if isinstance(items, dict) else ((i, i) for i in (items or []))
+    return {f"{name}@{key}": _paths(st["do"], cfg, {"key": key, "item": item}) for key, item in pairs}
 
 
 def _paths(st: dict, cfg: Any, scope: dict) -> tuple[list[tuple[str, str]], list[tuple[str, str]]]:
@@ -158,11 +204,13 @@ def _lock_outs(stage: str, dvc_lock: Path) -> dict[str, str]:
 
 
 @contextlib.contextmanager
-def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Iterator[None]:
+def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".", params: str | os.PathLike | None = None
+              ) -> Iterator[None]:
     """Everything written inside is written by ``stage`` (``name`` or ``name@item``), whose
-    inputs and outputs ``dvc.yaml`` in ``root`` declares (resolved with ``cfg``)."""
+    inputs and outputs ``dvc.yaml`` in ``root`` declares (resolved with ``cfg``, read from
+    ``params``; the other pipeline's stages with their own params file)."""
     root = Path(root)
-    layout = _declared(cfg, root / "dvc.yaml") if cfg is not None else {}
+    layout = _declared(cfg, root / "dvc.yaml", params) if cfg is not None else {}
     deps, outs = layout.get(stage, ([], []))
     others = {_resolve(o): name for name, (_, os_) in layout.items() if name != stage for o, _ in os_}
     run = _Run(stage, tuple(_resolve(d) for d, _ in deps), tuple(_resolve(o) for o, _ in outs), others,

@@ -207,6 +207,31 @@ def _last_times(path: Path) -> dict[str, float]:
         return {}
 
 
+RIG_PREFIX = "rig_"  # the rig pipeline's stages (dvc.yaml), on the real flights
+
+
+def _with_rig(upstream: dict[str, set[str]], params: Path = Path("params-rig.yaml")) -> dict[str, set[str]]:
+    """The stages to run: the rig pipeline's only where its files can be had (the simulated
+    world's pipeline needs no data and no network); one line says which."""
+    rig = {s for s in upstream if s.startswith(RIG_PREFIX)}
+    if not rig:
+        return upstream
+    from omegaconf import OmegaConf
+
+    from nanosysid.rig.fetch import available
+
+    ok, where = False, f"{params} is missing (make params)"
+    if params.is_file():
+        c = OmegaConf.to_container(OmegaConf.load(params), resolve=True)["rig"]
+        ok, where = available(c["manifest"], c["paths"]["raw"], local=c["local"], url=c["upstream"]["url"],
+                              repository=c["upstream"]["repository"], commit=c["upstream"]["commit"])
+    if ok:
+        print(f"rig pipeline: the real flights from {where}")
+        return upstream
+    print(f"rig pipeline skipped: {where}")
+    return {s: ups - rig for s, ups in upstream.items() if s not in rig}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0].strip("`: "))
     p.add_argument("--jobs", type=int, default=2, help="stages at a time (default 2)")
@@ -221,6 +246,7 @@ def main(argv: list[str] | None = None) -> int:
     except DvcException as e:  # no repository, a malformed dvc.yaml: DVC's own message, no traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
+    upstream = _with_rig(upstream)
     order = best_order(upstream, _last_times(a.out), jobs=a.jobs)
     LOG_DIR.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)

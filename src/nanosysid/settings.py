@@ -85,7 +85,12 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("preprocess.topics.motors.invalid", NONNEG_COUNT),
     ("preprocess.topics.odom.velocity_frame", ("world", "body")), ("preprocess.topics.*", TEXT),
     ("data.source", TEXT), ("data.flights_dir", TEXT), ("data.rotor_delay", NONNEG_OR_NULL),
-    ("paths.*", TEXT), ("split.*", TEXT),
+    ("paths.export", TEXT_OR_NULL), ("paths.*", TEXT), ("split.*", TEXT),
+    ("preprocess.format", ("bags", "logs")), ("preprocess.sync.position", ("mocap", "onboard")),
+    ("rig.local", TEXT_OR_NULL), ("rig.timeout", POSITIVE), ("rig.manifest", TEXT), ("rig.upstream.*", TEXT),
+    ("rig.paths.*", TEXT), ("rig.logs.accel_frame", ("world", "body")), ("rig.logs.max_erpm", POSITIVE),
+    ("rig.logs.pole_pairs", POSITIVE), ("rig.logs.erpm_unit", POSITIVE), ("rig.logs.keep_incomplete", FLAG),
+    ("rig.logs.aliases.*", TEXT), ("rig.logs.flights.*", TEXT), ("rig.artifacts.*", TEXT),
     # models
     ("models.*.kind", TEXT), ("models.*.artifact", TEXT), ("models.*.checkpoint", TEXT), ("models.*.model", TEXT),
     # (``*`` spans dots: models.*.dt is also phys_res's models.phys_res.physics.dt)

@@ -34,6 +34,8 @@ from nanosysid.settings import configured
 __all__ = ["FilterConfig", "filter_flight", "filter_folder", "lowpass", "fill_gaps"]
 
 QUAT = ["qx", "qy", "qz", "qw"]
+# the columns of a synchronised flight carried into the published CSV as extra signals
+EXTRA_PREFIXES = ("cmd_", "vbat")
 log = logging.getLogger("nanosysid.filter")
 
 
@@ -107,7 +109,7 @@ def filter_flight(name: str, synced: pd.DataFrame, cfg: FilterConfig) -> tuple[F
         The flight in the published schema, and a report of the gaps left unfilled.
     """
     groups = {
-        "position": (["x", "y", "z"], "miss_mocap", cfg.position),
+        "position": (["x", "y", "z"], "miss_position" if "miss_position" in synced else "miss_mocap", cfg.position),
         "velocity": (["vx", "vy", "vz"], "miss_odom", cfg.velocity),
         "rates": (["wx", "wy", "wz"], "miss_imu", cfg.velocity),
         "acceleration": (list(ACCEL_COLUMNS), "miss_imu", cfg.acceleration),
@@ -125,7 +127,8 @@ def filter_flight(name: str, synced: pd.DataFrame, cfg: FilterConfig) -> tuple[F
         if runs:
             left[f"motor {i + 1}"] = runs
     r, q0 = _quat_to_rotvec(synced[QUAT].to_numpy())
-    r, runs = fill_gaps(r, synced["miss_mocap"].to_numpy(), cfg.max_gap)
+    # the attitude's own mask where it does not come from the motion capture (the rig's logs)
+    r, runs = fill_gaps(r, synced["miss_attitude" if "miss_attitude" in synced else "miss_mocap"].to_numpy(), cfg.max_gap)
     q = _rotvec_to_quat(lowpass(r, cfg.quaternion, cfg.rate, cfg.order), q0)
     out.update(zip(QUAT, q.T))
     if runs:
@@ -147,6 +150,10 @@ def filter_flight(name: str, synced: pd.DataFrame, cfg: FilterConfig) -> tuple[F
     if "yaw_ref" in synced and synced["yaw_ref"].to_numpy().any():
         # the yaw setpoint of a calibration flight: a reference, not a measurement, kept as it is
         flight.extra["yaw_ref"] = synced["yaw_ref"].to_numpy().copy()
+    for c in synced.columns:
+        if c.startswith(EXTRA_PREFIXES):
+            # the controller's commands and the battery: signals beside the flight, kept as recorded
+            flight.extra[c] = synced[c].to_numpy().copy()
     report = {"flight": name, "gaps_left": {k: [list(g) for g in v] for k, v in left.items()}}
     return flight, report
 

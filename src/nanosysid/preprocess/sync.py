@@ -39,13 +39,17 @@ from scipy.spatial.transform import Rotation, Slerp
 from tqdm.auto import tqdm
 
 from nanosysid.dataio import atomic_dir, atomic_file, check_finite, session_of, write_json
-from nanosysid.errors import DataError
+from nanosysid.errors import ConfigError, DataError
 from nanosysid.settings import configured
 
 __all__ = ["SyncConfig", "sync_flight", "sync_folder", "clock_fit", "xcorr_lag", "LagEvidence", "LagEstimate",
            "motor_lag_evidence", "motor_lag_estimate", "onboard_clock", "setpoint_on_stm", "INSTRUMENTED", "WHOLE_FLIGHT"]
 
 log = logging.getLogger(__name__)
+
+# the streams every recording has, and those the sync carries where it has them
+STREAMS = ("mocap", "odom", "imu", "motors", "setpoint")
+OPTIONAL_STREAMS = ("controller",)
 
 
 @configured("preprocess/default.yaml", "sync")
@@ -60,6 +64,7 @@ class SyncConfig:
     xcorr_band: tuple[float, float]
     xcorr_step: float
     min_samples: int
+    position: str
     warn_loss: float
     warn_gap: int
     max_loss: float
@@ -438,7 +443,7 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
             ``cfg.min_samples``.
     """
     period = 1.0 / cfg.rate
-    mocap, odom, imu, motors, setp = (tables[k] for k in ("mocap", "odom", "imu", "motors", "setpoint"))
+    mocap, odom, imu, motors, setp = (tables[k] for k in STREAMS)
     report: dict[str, Any] = {"flight": name}
 
     # 1. clocks against the host
@@ -517,10 +522,31 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
     for c in ("x", "y", "z"):
         out[c] = np.interp(t, t_mc, mocap[c].to_numpy())
     q = mocap[["qx", "qy", "qz", "qw"]].to_numpy()
-    out[["qx", "qy", "qz", "qw"]] = Slerp(t_mc, Rotation.from_quat(q))(t).as_quat()
+    if np.isnan(q).all():
+        # a motion capture without attitude (the rig's logs): the onboard estimate's, as measured
+        j, masks["attitude"] = _grid_nearest(t_od, t, period)
+        out[["qx", "qy", "qz", "qw"]] = odom[["qx", "qy", "qz", "qw"]].to_numpy()[j]
+        report["attitude"] = "onboard estimate (the motion capture has none)"
+    else:
+        out[["qx", "qy", "qz", "qw"]] = Slerp(t_mc, Rotation.from_quat(q))(t).as_quat()
     # the host's yaw setpoint (zero outside the flight), held between its messages
     t_sp = host_to_stm(setp["t_src"].to_numpy())
     out["yaw_ref"] = setp["yaw"].to_numpy()[np.clip(np.searchsorted(t_sp, t + 1e-9) - 1, 0, len(t_sp) - 1)]
+    if cfg.position == "onboard":
+        # the onboard estimate's position (the benchmark's published flights hold it): a motion
+        # capture dropout then leaves no gap in the position
+        j, masks["position"] = _grid_nearest(t_od, t, period)
+        for c in ("x", "y", "z"):
+            out[c] = odom[c].to_numpy()[j]
+    elif cfg.position != "mocap":
+        raise ConfigError(f"preprocess.sync.position must be mocap or onboard, got {cfg.position!r}")
+    # the controller's stream, where the recording has one: its commands and the battery's
+    # voltage, carried as extra signals (nearest message)
+    if tables.get("controller") is not None:
+        ctl = tables["controller"]
+        j, masks["controller"] = _grid_nearest(ctl["t_src"].to_numpy(), t, period)
+        for c in ctl.columns[2:]:
+            out[c] = ctl[c].to_numpy()[j]
     for k, m in masks.items():
         out[f"miss_{k}"] = m
 
@@ -656,11 +682,14 @@ def sync_folder(extract_dir: Path, out_dir: Path, report_dir: Path, cfg: SyncCon
     tables, evidence = {}, {}
     for d in tqdm(flights, desc="motor lag", unit="flight", disable=None):
         tables[d.name] = {}
-        for stream in ("mocap", "odom", "imu", "motors", "setpoint"):
+        for stream in STREAMS:
             f = d / f"{stream}.parquet"
             if not f.exists():
                 raise DataError(f"{f}: missing (the {stream} stream was not extracted)")
             tables[d.name][stream] = pd.read_parquet(f)
+        for stream in OPTIONAL_STREAMS:
+            if (d / f"{stream}.parquet").exists():
+                tables[d.name][stream] = pd.read_parquet(d / f"{stream}.parquet")
         t = tables[d.name]
         evidence[d.name] = motor_lag_evidence(str(d), t["imu"], t["motors"], cfg, odom=t["odom"],
                                               setpoint=setpoint_on_stm(t["setpoint"], *onboard_clock(t["odom"], t["imu"])))
