@@ -80,7 +80,7 @@ def rig_main(cfg: DictConfig) -> None:
              f"{', '.join(f.name for f in bench.test)}), read from the authors' logs and processed by this product's "
              "own sync, filter and split; every model trained and scored here.", "",
              rig.results_section(results, causes), ident, alignment,
-             stats_markdown(trajectory_stats(bench.train + bench.test)).replace("# ", "## ", 1),
+             stats_markdown(trajectory_stats(bench.train + bench.test), what="the rig's").replace("# ", "## ", 1),
              paper.results_markdown(comparison)]
     out = Path(cfg.rig.paths.report)
     with atomic_file(out / "paper.md") as tmp:

@@ -1,5 +1,5 @@
-"""fetch: the rig's real flights, from rig.local or the upstream repository at the pinned commit,
-every file checked against the committed SHA-256 manifest."""
+"""fetch: the rig's real flights, from rig.local or through DVC from the upstream repository at the
+pinned commit, every file checked against the committed SHA-256 manifest."""
 
 from omegaconf import DictConfig
 
@@ -9,8 +9,7 @@ from stages.common import run_stage
 
 def main(cfg: DictConfig) -> None:
     c = cfg.rig
-    fetch(c.manifest, c.paths.raw, local=c.local, url=c.upstream.url, repository=c.upstream.repository,
-          commit=c.upstream.commit, timeout=float(c.timeout))
+    fetch(c.manifest, c.paths.raw, local=c.local, repository=c.upstream.repository, commit=c.upstream.commit)
 
 
 if __name__ == "__main__":

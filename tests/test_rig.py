@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -197,7 +198,7 @@ def test_the_cuts_pass_sync_and_filter_with_their_extra_signals(processed):
 def manifest_for(folder: Path, tmp_path: Path, **wrong) -> Path:
     lines = []
     for p in sorted(folder.rglob("*")):
-        if p.is_file():
+        if p.is_file() and p.suffix != ".md":
             rel = str(p.relative_to(folder))
             digest = wrong.get(rel, hashlib.sha256(p.read_bytes()).hexdigest())
             lines.append(f"{digest}  {rel}  upstream/{rel}")
@@ -206,26 +207,56 @@ def manifest_for(folder: Path, tmp_path: Path, **wrong) -> Path:
     return m
 
 
-FETCH = dict(url="http://127.0.0.1:9/{repository}/{commit}/{path}", repository="o/r", commit="c" * 40, timeout=2.0)
+def upstream_repo(tmp_path: Path) -> tuple[Path, str]:
+    """A git repository holding the fixture's files under ``upstream/`` at its first commit (a later
+    commit changes one, as the authors' later commits moved the logs to Git LFS)."""
+    import subprocess
+
+    repo = tmp_path / "upstream.git"
+    shutil.copytree(DATA, repo / "upstream", ignore=shutil.ignore_patterns("*.md"))
+    git = lambda *a: subprocess.run(["git", "-c", "user.name=t", "-c", "user.email=t@t", *a], cwd=repo,  # noqa: E731
+                                    check=True, capture_output=True, text=True).stdout.strip()
+    git("init", "-q")
+    git("add", "-A")
+    git("commit", "-qm", "logs")
+    commit = git("rev-parse", "HEAD")
+    (repo / "upstream" / "raw" / "square_20251017_run2.parquet").write_text("version https://git-lfs.github.com/spec/v1\n")
+    git("commit", "-qam", "to LFS")
+    return repo, commit
 
 
 def test_a_local_copy_is_fetched_and_checked(tmp_path):
     local = tmp_path / "copy"
     shutil.copytree(DATA, local, ignore=shutil.ignore_patterns("*.md"))
     m = manifest_for(local, tmp_path)
-    got = rigfetch.fetch(m, tmp_path / "raw", local=local, **FETCH)
+    got = rigfetch.fetch(m, tmp_path / "raw", local=local, repository=str(tmp_path / "nowhere"), commit="0" * 40)
     assert got["source"] == "local"
     for rel, digest in got["files"].items():
         assert hashlib.sha256((tmp_path / "raw" / rel).read_bytes()).hexdigest() == digest
 
 
-def test_no_network_and_no_folder_is_one_line_naming_the_file(tmp_path):
+def test_without_a_local_copy_the_files_come_through_dvc_from_the_pinned_commit(tmp_path):
+    repo, commit = upstream_repo(tmp_path)
+    m = manifest_for(DATA, tmp_path)
+    got = rigfetch.fetch(m, tmp_path / "raw", local=tmp_path / "no-copy", repository=str(repo), commit=commit)
+    assert got["source"] == "upstream"
+    assert (tmp_path / "raw" / "raw" / "square_20251017_run2.parquet").read_bytes() == \
+        (DATA / "raw" / "square_20251017_run2.parquet").read_bytes()
+    # the later commit's pointer file is not the pinned campaign's: refused, nothing written
+    head = __import__("subprocess").run(["git", "rev-parse", "HEAD"], cwd=repo, capture_output=True, text=True).stdout.strip()
+    with pytest.raises(DataError, match=r"square_20251017_run2\.parquet: SHA-256 [0-9a-f]{64}, but the manifest"):
+        rigfetch.fetch(m, tmp_path / "raw2", local=None, repository=str(repo), commit=head)
+    assert not (tmp_path / "raw2").exists()
+
+
+def test_no_network_and_no_folder_is_one_line_naming_the_repository(tmp_path):
     m = manifest_for(DATA / "raw", tmp_path)
-    with pytest.raises(DataError, match=r"^http://127\.0\.0\.1:9/o/r/c{40}/upstream/\S+: cannot be downloaded .*set "
+    nowhere = tmp_path / "nowhere.git"
+    with pytest.raises(DataError, match=rf"^{re.escape(str(nowhere))} at c{{40}}: cannot be fetched through DVC .*set "
                                         r"rig\.local"):
-        rigfetch.fetch(m, tmp_path / "raw", local=tmp_path / "nowhere", **FETCH)
+        rigfetch.fetch(m, tmp_path / "raw", local=tmp_path / "no-copy", repository=str(nowhere), commit="c" * 40)
     assert not (tmp_path / "raw").exists()
-    ok, why = rigfetch.available(m, tmp_path / "raw", local=None, **FETCH)
+    ok, why = rigfetch.available(m, tmp_path / "raw", local=None, repository=str(nowhere), commit="c" * 40)
     assert not ok and "cannot be reached" in why
 
 
@@ -307,7 +338,7 @@ def test_the_repro_leaves_out_the_rig_pipeline_without_its_files(tmp_path, monke
     manifest.write_text(f"{'0' * 64}  raw/a.parquet  up/a.parquet\n")
     params.write_text(yaml.safe_dump({"rig": {"manifest": str(manifest), "local": str(tmp_path / "nowhere"),
                                               "paths": {"raw": str(tmp_path / "raw")},
-                                              "upstream": {"url": FETCH["url"], "repository": "o/r",
+                                              "upstream": {"repository": str(tmp_path / "no-repo"),
                                                            "commit": "c" * 40}}}))
     graph = {"split": set(), "rig_fetch": set(), "rig_split": {"rig_fetch"}, "report": {"split", "rig_split"}}
     assert repro._with_rig(graph, params) == {"split": set(), "report": {"split"}}

@@ -223,7 +223,7 @@ def _with_rig(upstream: dict[str, set[str]], params: Path = Path("params-rig.yam
     ok, where = False, f"{params} is missing (make params)"
     if params.is_file():
         c = OmegaConf.to_container(OmegaConf.load(params), resolve=True)["rig"]
-        ok, where = available(c["manifest"], c["paths"]["raw"], local=c["local"], url=c["upstream"]["url"],
+        ok, where = available(c["manifest"], c["paths"]["raw"], local=c["local"],
                               repository=c["upstream"]["repository"], commit=c["upstream"]["commit"])
     if ok:
         print(f"rig pipeline: the real flights from {where}")

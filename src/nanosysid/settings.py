@@ -87,7 +87,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("data.source", TEXT), ("data.flights_dir", TEXT), ("data.rotor_delay", NONNEG_OR_NULL),
     ("paths.export", TEXT_OR_NULL), ("paths.*", TEXT), ("split.*", TEXT),
     ("preprocess.format", ("bags", "logs")), ("preprocess.sync.position", ("mocap", "onboard")),
-    ("rig.local", TEXT_OR_NULL), ("rig.timeout", POSITIVE), ("rig.manifest", TEXT), ("rig.upstream.*", TEXT),
+    ("rig.local", TEXT_OR_NULL), ("rig.manifest", TEXT), ("rig.upstream.*", TEXT),
     ("rig.paths.*", TEXT), ("rig.logs.accel_frame", ("world", "body")), ("rig.logs.max_erpm", POSITIVE),
     ("rig.logs.pole_pairs", POSITIVE), ("rig.logs.erpm_unit", POSITIVE), ("rig.logs.keep_incomplete", FLAG),
     ("rig.logs.aliases.*", TEXT), ("rig.logs.flights.*", TEXT), ("rig.artifacts.*", TEXT),

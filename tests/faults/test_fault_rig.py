@@ -120,7 +120,7 @@ def manifest(folder: Path, tmp_path: Path, change: str | None = None) -> Path:
     return m
 
 
-FETCH = dict(url="http://127.0.0.1:9/{repository}/{commit}/{path}", repository="o/r", commit="0" * 40, timeout=2.0)
+FETCH = dict(repository="/nonexistent/upstream.git", commit="0" * 40)
 
 
 def test_a_checksum_that_differs(tmp_path):

@@ -279,13 +279,15 @@ def quality_section(logs: Mapping[str, Any], sync: Sequence[Mapping[str, Any]], 
                  f"{', '.join(others) or '-'} | {', '.join(f'{k}: {len(v)}' for k, v in gaps.items()) or '-'} |")
     L.append("")
     shares = {n: f["rules"]["accel_frame"]["lateral_share"] for n, f in logs["flights"].items()}
+    frame = next(iter(logs["flights"].values()))["rules"]["accel_frame"]["configured"]
+    other = "body" if frame == "world" else "world"
+    span = lambda f: f"{min(s[f] for s in shares.values()):.0%} to {max(s[f] for s in shares.values()):.0%}"  # noqa: E731
     L += ["## The acceleration's frame", "",
-          "The logs' `ax ay az` are the specific force rotated into the world frame: read in the body frame, the "
-          "part across the thrust axis would be "
-          f"{min(s['body'] for s in shares.values()):.0%} to {max(s['body'] for s in shares.values()):.0%} of its size; "
-          f"rotated back by the attitude it is {min(s['world'] for s in shares.values()):.0%} to "
-          f"{max(s['world'] for s in shares.values()):.0%} (drag and the rotors' tilt). Against the authors' "
-          "processed `ax_body ay_body az_body` (RMS over their rows, m/s²):", "",
+          f"The logs' `ax ay az` are the specific force in the {frame} frame (`rig.logs.accel_frame`), as the data "
+          "say: a quadrotor's specific force lies along its thrust axis, and the part across that axis is "
+          f"{span(frame)} of its size read in the {frame} frame (drag and the rotors' tilt), {span(other)} read in "
+          f"the {other} frame. Against the authors' processed `ax_body ay_body az_body` (RMS over their rows, "
+          "m/s²):", "",
           "| flight | rows | ours (rotated to the body) | the logged values as they stand |", "|---|---|---|---|"]
     for name, a in accel.items():
         L.append(f"| {name} | {a['rows']} | {a['ours']:.3f} | {a['logged']:.3f} |")

@@ -44,14 +44,14 @@ def trajectory_stats(flights: list[Flight]) -> dict[str, dict[str, float]]:
     return {t: {k: float(np.mean([s[k] for s in runs])) for k in STAT_NAMES} for t, runs in by_traj.items()}
 
 
-def stats_markdown(stats: dict[str, dict[str, float]], *, tolerance: float = 0.2) -> str:
-    """Simulated against paper statistics, side by side, with the ratio; ratios off 1 by more
-    than ``tolerance`` are marked."""
+def stats_markdown(stats: dict[str, dict[str, float]], *, tolerance: float = 0.2, what: str = "simulated") -> str:
+    """``what`` flights' (simulated, or the rig's) against the paper's statistics, side by side,
+    with the ratio; ratios off 1 by more than ``tolerance`` are marked."""
     lines = [
-        "# Trajectory statistics: simulated flights against the paper",
+        f"# Trajectory statistics: {what} flights against the paper",
         "",
         "Averaged over the runs of each trajectory. Speed from the velocity column, acceleration",
-        "from the accelerometer (R a_IMU - g), tilt from the quaternion. Each cell: simulated /",
+        f"from the accelerometer (R a_IMU - g), tilt from the quaternion. Each cell: {what} /",
         f"paper (ratio); a ratio outside 1 ± {tolerance:g} is marked ✗.",
         "",
         "| trajectory | " + " | ".join(STAT_LABELS[k] for k in STAT_NAMES) + " |",

@@ -3,18 +3,19 @@ checked against the SHA-256 manifest the project commits.
 
 The manifest has one line a file: ``<sha256>  <path here>  <path upstream>``. A local folder
 must hold exactly the manifest's files under their paths here (another campaign's flights beside
-them are refused: they are not the benchmark's); without one, every file is downloaded from
-``url`` (``{repository}``, ``{commit}`` and ``{path}`` filled in). Either way the files are
-written to the output folder only when every one arrived and matched.
+them are refused: they are not the benchmark's); without one, every file is read through DVC from
+the upstream git repository at the pinned commit (:class:`dvc.api.DVCFileSystem`, as ``dvc import``
+reads it: one clone, plain git blobs at that commit). Either way the files are written to the
+output folder only when every one arrived and matched.
 """
 
 from __future__ import annotations
 
 import hashlib
 import logging
+import os
 import shutil
-import urllib.error
-import urllib.request
+import subprocess
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
@@ -106,21 +107,36 @@ def local_source(local: str | Path | None, entries: Sequence[Entry]) -> Path | N
     return folder
 
 
-def _download(url: str, dest: Path, timeout: float) -> None:
+def _upstream(repository: str, commit: str):
+    """DVC's file system over the upstream git repository at ``commit`` (one clone).
+
+    Raises:
+        DataError: the repository cannot be reached or has no such commit.
+    """
+    from dvc.api import DVCFileSystem
+    from dvc.exceptions import DvcException
+
     try:
-        with urllib.request.urlopen(url, timeout=timeout) as r, open(dest, "wb") as f:
-            shutil.copyfileobj(r, f)
-    except urllib.error.HTTPError as e:
-        raise DataError(f"{url}: the server answered {e.code} {e.reason}; check rig.upstream (repository, commit)") from None
-    except (urllib.error.URLError, TimeoutError, OSError) as e:
-        reason = getattr(e, "reason", e)
-        raise DataError(f"{url}: cannot be downloaded ({reason}); without a network, set rig.local to a folder "
-                        "holding the campaign's files") from None
+        fs = DVCFileSystem(repository, rev=commit)
+        fs.repo  # noqa: B018 (the clone happens here; a lazy one would read a failure as a missing file)
+        return fs
+    except (DvcException, OSError, ValueError) as e:
+        cause = f"{type(e).__name__}: {e}" + (f"; {e.__cause__}" if e.__cause__ else "")
+        raise DataError(f"{repository} at {commit}: cannot be fetched through DVC ({cause}); without a network, set "
+                        "rig.local to a folder holding the campaign's files") from None
 
 
-def fetch(manifest: str | Path, out_dir: str | Path, *, local: str | Path | None, url: str, repository: str,
-          commit: str, timeout: float = 60.0) -> dict:
-    """Copy or download every file of the manifest into ``out_dir`` and check its SHA-256.
+def _copy_upstream(fs, e: Entry, dest: Path, where: str) -> None:
+    if not fs.exists(e.upstream):
+        raise DataError(f"{where}: not in the upstream repository at that commit; check rig.upstream and the manifest")
+    with fs.open(e.upstream, "rb") as src, open(dest, "wb") as out:
+        shutil.copyfileobj(src, out)
+
+
+def fetch(manifest: str | Path, out_dir: str | Path, *, local: str | Path | None, repository: str,
+          commit: str) -> dict:
+    """Copy (from ``local``) or fetch through DVC (from ``repository`` at ``commit``) every file of
+    the manifest into ``out_dir`` and check its SHA-256.
 
     Returns:
         ``{"source": "local" | "upstream", "files": {path: sha256}}``.
@@ -131,6 +147,7 @@ def fetch(manifest: str | Path, out_dir: str | Path, *, local: str | Path | None
     """
     entries = read_manifest(manifest)
     folder = local_source(local, entries)
+    fs = _upstream(repository, commit) if folder is None else None
     with atomic_dir(out_dir, inputs=[folder] if folder else ()) as tmp:
         for e in tqdm(entries, desc="fetch", unit="file", disable=None):
             dest = tmp / e.path
@@ -139,8 +156,8 @@ def fetch(manifest: str | Path, out_dir: str | Path, *, local: str | Path | None
                 where = str(folder / e.path)
                 shutil.copyfile(folder / e.path, dest)
             else:
-                where = url.format(repository=repository, commit=commit, path=e.upstream)
-                _download(where, dest, timeout)
+                where = f"{repository}@{commit[:12]}:{e.upstream}"
+                _copy_upstream(fs, e, dest, where)
             found = sha256(dest)
             if found != e.sha256:
                 raise DataError(f"{where}: SHA-256 {found}, but the manifest {manifest} says {e.sha256}: not the "
@@ -150,10 +167,10 @@ def fetch(manifest: str | Path, out_dir: str | Path, *, local: str | Path | None
     return {"source": source, "files": {e.path: e.sha256 for e in entries}}
 
 
-def available(manifest: str | Path, raw_dir: str | Path, *, local: str | Path | None, url: str, repository: str,
-              commit: str, timeout: float = 5.0) -> tuple[bool, str]:
+def available(manifest: str | Path, raw_dir: str | Path, *, local: str | Path | None, repository: str,
+              commit: str, timeout: float = 20.0) -> tuple[bool, str]:
     """Whether the rig's files can be had here, and from where (or why not): already fetched,
-    in the local folder, or from upstream (one request for the manifest's first file)."""
+    in the local folder, or upstream (``git ls-remote``, one round trip)."""
     try:
         entries = read_manifest(manifest)
     except DataError as e:
@@ -162,10 +179,12 @@ def available(manifest: str | Path, raw_dir: str | Path, *, local: str | Path | 
         return True, f"fetched in {raw_dir}"
     if local is not None and Path(local).is_dir():
         return True, f"the local folder {local}"
-    first = url.format(repository=repository, commit=commit, path=entries[0].upstream)
     try:
-        with urllib.request.urlopen(urllib.request.Request(first, method="HEAD"), timeout=timeout):
+        r = subprocess.run(["git", "ls-remote", "--exit-code", str(repository), "HEAD"], capture_output=True, text=True,
+                           timeout=timeout, env=dict(os.environ, GIT_TERMINAL_PROMPT="0"))
+        if r.returncode == 0:
             return True, f"upstream ({repository} at {commit[:12]})"
-    except (urllib.error.URLError, TimeoutError, OSError, ValueError) as e:
-        return False, (f"no folder at rig.local = {local} and {first} cannot be reached "
-                       f"({getattr(e, 'reason', e)})")
+        why = (r.stderr.strip().splitlines() or [f"git exit {r.returncode}"])[-1]
+    except (OSError, subprocess.TimeoutExpired) as e:
+        why = str(e)
+    return False, f"no folder at rig.local = {local} and {repository} cannot be reached ({why})"
