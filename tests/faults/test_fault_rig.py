@@ -123,31 +123,32 @@ def manifest(folder: Path, tmp_path: Path, change: str | None = None) -> Path:
 FETCH = dict(repository="/nonexistent/upstream.git", commit="0" * 40)
 
 
-def test_a_checksum_that_differs(tmp_path):
+def local_copy(tmp_path: Path, change: str | None = None) -> tuple[Path, Path]:
+    """A local folder holding the fixture's logs, and its manifest (``change``: that file's hash wrong)."""
     local = tmp_path / "local"
     shutil.copytree(DATA / "raw", local / "raw")
-    m = manifest(local, tmp_path, change=LOG.name)
-    with pytest.raises(DataError, match=r"square_20251017_run2\.parquet: SHA-256 [0-9a-f]{64}, but the manifest .* "
-                                        r"nothing was written"):
+    return local, manifest(local, tmp_path, change=change)
+
+
+def fetch_refused(tmp_path: Path, local: Path, m: Path, match: str) -> None:
+    with pytest.raises(DataError, match=match):
         rigfetch.fetch(m, tmp_path / "out", local=local, **FETCH)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_checksum_that_differs(tmp_path):
+    local, m = local_copy(tmp_path, change=LOG.name)
+    fetch_refused(tmp_path, local, m, r"square_20251017_run2\.parquet: SHA-256 [0-9a-f]{64}, but the manifest .* "
+                                      r"nothing was written")
 
 
 def test_a_local_folder_missing_a_file(tmp_path):
-    local = tmp_path / "local"
-    shutil.copytree(DATA / "raw", local / "raw")
-    m = manifest(local, tmp_path)
+    local, m = local_copy(tmp_path)
     (local / "raw" / LOG.name).unlink()
-    with pytest.raises(DataError, match=r"square_20251017_run2\.parquet: missing \(1 of the manifest's 2 files"):
-        rigfetch.fetch(m, tmp_path / "out", local=local, **FETCH)
-    assert not (tmp_path / "out").exists()
+    fetch_refused(tmp_path, local, m, r"square_20251017_run2\.parquet: missing \(1 of the manifest's 2 files")
 
 
 def test_a_local_folder_with_other_flights(tmp_path):
-    local = tmp_path / "local"
-    shutil.copytree(DATA / "raw", local / "raw")
-    m = manifest(local, tmp_path)
+    local, m = local_copy(tmp_path)
     shutil.copy(LOG, local / "raw" / "square_20251018_run1.parquet")
-    with pytest.raises(DataError, match=r"square_20251018_run1\.parquet: not in the manifest"):
-        rigfetch.fetch(m, tmp_path / "out", local=local, **FETCH)
-    assert not (tmp_path / "out").exists()
+    fetch_refused(tmp_path, local, m, r"square_20251018_run1\.parquet: not in the manifest")

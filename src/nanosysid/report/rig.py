@@ -140,9 +140,13 @@ def alignment_section(sync: Sequence[Mapping[str, Any]], authors: Mapping[str, M
     L.append("")
     contradicted = [f for f, v in rec["flights"].items() if v["authors"] and v["verdict"].startswith("contradict")]
     apart = [f for f, v in rec["flights"].items() if "outside the rig-level" in v["verdict"]]
-    L.append("The data contradict the authors' alignment of " + (", ".join(contradicted) if contradicted else "none of "
-             "their flights") + ". " + (f"The flights whose own lag lies outside the rig-level interval ({', '.join(apart)}) "
-             "were merged with a motor timing of their own: one lag for the rig does not hold for them." if apart else ""))
+    L.append((f"The data contradict the authors' alignment of {', '.join(contradicted)}. " if contradicted else
+              "The data contradict none of the authors' alignments (to their one-sample step). ")
+             + (f"The flights whose own lag lies outside the rig-level interval ({', '.join(apart)}) carry a motor "
+                "timing of their own in these logs" + "".join(
+                    f"; the authors aligned {f} by {authors[f]['lag_samples_field']} samples themselves"
+                    for f in apart if f in authors and authors[f]["lag_samples_field"])
+                + ": one lag for the whole rig does not hold for them." if apart else ""))
     L.append("")
     rec["contradicted"], rec["outside_rig_interval"] = contradicted, apart
     return "\n".join(L), rec

@@ -75,11 +75,8 @@ def read_manifest(path: str | Path) -> list[Entry]:
 
 def sha256(path: Path) -> str:
     """The SHA-256 of a file, hex."""
-    h = hashlib.sha256()
     with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
+        return hashlib.file_digest(f, "sha256").hexdigest()
 
 
 def local_source(local: str | Path | None, entries: Sequence[Entry]) -> Path | None:
