@@ -17,7 +17,7 @@ from typing import Any, Callable, Sequence
 
 from omegaconf import DictConfig, OmegaConf
 
-from nanosysid.config import PARAMS, load_params
+from nanosysid.config import load_params
 from nanosysid.dataio import Flight
 from nanosysid.errors import ConfigError, UserError
 from nanosysid.guard import stage_name, stage_run
@@ -51,7 +51,7 @@ def run_stage(
     try:
         kw = {"path": args.params} if args.params else {}
         cfg: DictConfig = load_params(args.overrides, **kw)
-        with stage_run(stage, cfg, params=args.params or PARAMS):
+        with stage_run(stage, cfg):
             if name_arg:
                 main(cfg, getattr(args, name_arg))
             else:

@@ -345,3 +345,19 @@ def test_the_repro_leaves_out_the_rig_pipeline_without_its_files(tmp_path, monke
     assert capsys.readouterr().out.startswith("rig pipeline skipped: no folder at rig.local")
     (tmp_path / "nowhere").mkdir()
     assert repro._with_rig(graph, params) == graph
+
+
+def test_each_pipelines_stages_are_named_and_guarded_with_their_own_params(monkeypatch):
+    from nanosysid.config import load_params
+    from nanosysid.guard import claim, declared, stage_name, stage_run
+
+    monkeypatch.chdir(ROOT)  # dvc.yaml names each stage's params file relative to itself
+    assert stage_name("stages.sync", "params-rig.yaml") == "rig_sync"
+    assert stage_name("stages.sync", None) == stage_name("stages.sync", "elsewhere.yaml") == "sync"
+    cfg = load_params([], path="params-rig.yaml")
+    layout = declared(cfg, stage="rig_sync")
+    assert layout["rig_sync"][1][0] == "processed/rig/sync" and layout["sync"][1][0] == "processed/sync"
+    # a rig stage writing over the simulated world's output is refused (before anything is written)
+    with stage_run("rig_sync", cfg), pytest.raises(ConfigError, match=r"processed/sync.*the output of stage sync"):
+        with claim("processed/sync", "folder"):
+            pass  # pragma: no cover

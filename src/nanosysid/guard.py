@@ -98,13 +98,14 @@ def _interpolate(text: str, cfg: Any, scope: dict[str, Any]) -> str | None:
         return None
 
 
-def declared(cfg: Any, dvc_yaml: str | os.PathLike = "dvc.yaml", params: str | os.PathLike | None = None
+def declared(cfg: Any, dvc_yaml: str | os.PathLike = "dvc.yaml", stage: str | None = None
              ) -> dict[str, tuple[list[str], list[str]]]:
     """Every stage of ``dvc_yaml`` (``name`` or ``name@item``): its dependencies and outputs, the
     paths resolved with ``cfg`` (the run's settings, overrides included). Empty without the file.
-    With ``params`` (the file ``cfg`` was read from), a stage whose command reads another params
-    file (``--params``; ``params.yaml`` without) is resolved with that file's settings instead."""
-    return {k: ([p for p, _ in d], [p for p, _ in o]) for k, (d, o) in _declared(cfg, dvc_yaml, params).items()}
+    With ``stage`` (the one running), the stages of another pipeline (whose command reads another
+    params file than ``stage``'s: ``--params``, ``params.yaml`` without) are resolved with their
+    own file's settings."""
+    return {k: ([p for p, _ in d], [p for p, _ in o]) for k, (d, o) in _declared(cfg, dvc_yaml, stage).items()}
 
 
 _PARAMS_ARG = re.compile(r"--params[= ](\S+)")
@@ -131,7 +132,7 @@ def stage_name(module: str, params: str | os.PathLike | None, dvc_yaml: str | os
     return module.rpartition(".")[2]
 
 
-def _declared(cfg: Any, dvc_yaml: str | os.PathLike, params: str | os.PathLike | None = None
+def _declared(cfg: Any, dvc_yaml: str | os.PathLike, stage: str | None = None
               ) -> dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]]:
     from omegaconf import OmegaConf
 
@@ -141,9 +142,14 @@ def _declared(cfg: Any, dvc_yaml: str | os.PathLike, params: str | os.PathLike |
     stages = (_yaml(path.read_text()) or {}).get("stages", {})
     out: dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]] = {}
     others: dict[Path, Any] = {}
-    run_params = None if params is None else _resolve(params)
+
+    def params_file(st: dict) -> Path:
+        return _resolve(path.parent / _params_of(str(st.get("do", st).get("cmd", ""))))
+
+    base = None if stage is None else stages.get(stage.partition("@")[0])
+    run_params = None if base is None else params_file(base)
     for name, st in stages.items():
-        own = _resolve(path.parent / _params_of(str(st.get("do", st).get("cmd", ""))))
+        own = params_file(st)
         if run_params is not None and own != run_params:
             if own not in others:
                 try:
@@ -204,13 +210,12 @@ def _lock_outs(stage: str, dvc_lock: Path) -> dict[str, str]:
 
 
 @contextlib.contextmanager
-def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".", params: str | os.PathLike | None = None
-              ) -> Iterator[None]:
+def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Iterator[None]:
     """Everything written inside is written by ``stage`` (``name`` or ``name@item``), whose
-    inputs and outputs ``dvc.yaml`` in ``root`` declares (resolved with ``cfg``, read from
-    ``params``; the other pipeline's stages with their own params file)."""
+    inputs and outputs ``dvc.yaml`` in ``root`` declares (resolved with ``cfg``; the other
+    pipeline's stages with their own params file)."""
     root = Path(root)
-    layout = _declared(cfg, root / "dvc.yaml", params) if cfg is not None else {}
+    layout = _declared(cfg, root / "dvc.yaml", stage) if cfg is not None else {}
     deps, outs = layout.get(stage, ([], []))
     others = {_resolve(o): name for name, (_, os_) in layout.items() if name != stage for o, _ in os_}
     run = _Run(stage, tuple(_resolve(d) for d, _ in deps), tuple(_resolve(o) for o, _ in outs), others,
