@@ -63,6 +63,9 @@ COMMANDS = {"m1_thrust": "cmd_m1", "m2_thrust": "cmd_m2", "m3_thrust": "cmd_m3",
             "thrust": "cmd_thrust", "torque_roll": "cmd_torque_roll", "torque_pitch": "cmd_torque_pitch",
             "torque_yaw": "cmd_torque_yaw"}
 COPY_CORRELATION = 0.99
+# what a stream may hold as NaN: a missed motor reading (the sync marks it), the motion capture's
+# attitude the logs lack, a flag a log does not carry
+MAY_BE_NAN = {"motors": ("m1", "m2", "m3", "m4"), "mocap": ("qx", "qy", "qz", "qw"), "status": ("battery_voltage", "armed")}
 # a landing lowers the reference's height by at least this much (m) over its phase
 LANDING_DROP = 0.1
 FRAMES = ("world", "body")
@@ -265,7 +268,6 @@ def log_streams(df: pd.DataFrame, spec: LogSpec, where: str) -> tuple[dict[str, 
     # motion capture: no stamp of its own in the logs, a new frame where the position changes
     mc = values(["x_mocap", "y_mocap", "z_mocap"])
     new_mc = np.r_[True, (np.diff(mc, axis=0) != 0).any(axis=1)] & np.isfinite(mc).all(axis=1)
-    nan4 = np.full(len(df), np.nan)
     mocap = stream(new_mc, {"x": mc[:, 0], "y": mc[:, 1], "z": mc[:, 2]}, ts_state, "mocap")
     # the logs carry no motion-capture attitude: the sync takes the onboard estimate's
     streams["mocap"] = mocap.assign(qx=np.nan, qy=np.nan, qz=np.nan, qw=np.nan)
@@ -290,13 +292,11 @@ def log_streams(df: pd.DataFrame, spec: LogSpec, where: str) -> tuple[dict[str, 
                                            "z": np.where(inside, pr, 0.0)[:, 2],
                                            "yaw": np.nan_to_num(df["yaw_r"].to_numpy(dtype=np.float64))},
                                  ts_ref, "setpoint", t_src=ts_ref)
-    flags = {"battery_voltage": df["Vbat"].to_numpy(dtype=np.float64) if "Vbat" in df else nan4,
-             "armed": df["is_armed"].to_numpy(dtype=np.float64) if "is_armed" in df else np.ones(len(df)),
-             "flying": df["is_flying"].to_numpy(dtype=np.float64)}
-    if "Vbat" not in df:
-        flags.pop("battery_voltage")
-    status = stream(new_state, flags, ts_state, "status")
-    streams["status"] = status if "battery_voltage" in status else status.assign(battery_voltage=np.nan)
+    # the flags as the bags' status stream has them; a log without a battery reading leaves it NaN
+    flags = {c: df[k].to_numpy(dtype=np.float64) for k, c in (("Vbat", "battery_voltage"), ("is_armed", "armed"),
+                                                                ("is_flying", "flying")) if k in df}
+    streams["status"] = stream(new_state, flags, ts_state, "status").reindex(
+        columns=["t_recv", "t_src", "battery_voltage", "armed", "flying"])
 
     commands = {v: df[k].to_numpy(dtype=np.float64) for k, v in COMMANDS.items() if k in df}
     if "cmd_torque_yaw" in commands and "cmd_thrust" in commands:
@@ -352,8 +352,7 @@ def extract_logs(raw_dir: str | Path, out_dir: str | Path, spec: LogSpec) -> dic
                 continue
             (tmp / name).mkdir()
             for s, table in streams.items():
-                allowed = [c for c in table.columns if c.startswith("m") or c.startswith("q") or c == "battery_voltage"]
-                check_finite(table, f"{found[stem]}: stream {s}", allowed=allowed if s in ("motors", "mocap", "status") else ())
+                check_finite(table, f"{found[stem]}: stream {s}", allowed=MAY_BE_NAN.get(s, ()))
                 table.to_parquet(tmp / name / f"{s}.parquet", index=False)
         if not any(f["kept"] for f in report["flights"].values()):
             raise DataError(f"{raw_dir}: every log was left out; nothing to synchronise")
