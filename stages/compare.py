@@ -14,6 +14,7 @@ from nanosysid import identify, protocol
 from nanosysid.dataio import atomic_file, json_text
 from nanosysid.report import paper, rig, tables
 from nanosysid.report.stats import stats_markdown, trajectory_stats
+from nanosysid.rig.logs import LogSpec
 from nanosysid.report.world import nature_thrust_coefficient, world_markdown
 from stages.common import plain, run_stage, vehicle_of
 
@@ -63,11 +64,12 @@ def rig_main(cfg: DictConfig) -> None:
     causes = rig.measured_causes(results, scores)
     sync = json.loads((Path(cfg.preprocess.report_dir) / "sync.json").read_text())
     logs_dir, flights = Path(cfg.rig.paths.raw), plain(cfg.rig.logs.flights)
+    spec = LogSpec.from_mapping(plain(cfg.rig.logs))
     authors = {}
     for f in sorted((logs_dir / "processed").glob("*.csv")):
         if f.stem in flights:
             authors[flights[f.stem]] = rig.authors_alignment(pd.read_parquet(logs_dir / "raw" / f"{f.stem}.parquet"),
-                                                             pd.read_csv(f))
+                                                             pd.read_csv(f), rads_per_erpm=spec.rads_per_erpm)
     alignment, lag_rec = rig.alignment_section(sync, authors)
     yaw_ref = rig.yaw_reference_ranges(Path(cfg.preprocess.extract_dir))
     yaw = {f.name: rig.yaw_range(f) for f in bench.train + bench.test}

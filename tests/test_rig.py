@@ -66,6 +66,7 @@ def test_rotor_speed_is_erpm_over_six_pole_pairs(square):
     df, _ = square
     streams, _ = log_streams(df, spec(), "square")
     m = streams["motors"]
+    assert spec().rads_per_erpm == pytest.approx(np.pi / 180, rel=1e-15)
     row = df.set_index("t").loc[m["t_src"].iloc[0]]
     # 6 pole pairs: rpm = eRPM / 6, rad/s = rpm * 2 pi / 60 = eRPM * pi / 180
     assert m["m1"].iloc[0] == pytest.approx(row["m1_erpm"] * np.pi / 180, rel=1e-12)
@@ -292,7 +293,7 @@ def test_the_authors_alignment_is_read_from_their_shifts_by_hand():
         processed[f"m{i}_rads"] = log[f"m{i}_erpm"].to_numpy()[rows + 1 - 3] * np.pi / 180
     for c in ("wx", "wy", "wz"):
         processed[c] = log[c].to_numpy()[rows + 1]
-    a = rig.authors_alignment(log, processed)
+    a = rig.authors_alignment(log, processed, rads_per_erpm=np.pi / 180)  # 6 pole pairs
     assert (a["state_shift"], a["motor_shift"], a["lag_samples_field"]) == (1, -2, 3)
     assert a["lag"] == pytest.approx(-0.03)
 

@@ -80,16 +80,18 @@ def _best_shift(processed: np.ndarray, raw: np.ndarray, rows: np.ndarray, reach:
     return min(errs, key=errs.get)
 
 
-def authors_alignment(log: pd.DataFrame, processed: pd.DataFrame, *, dt: float = 0.01, reach: int = 8) -> dict[str, Any]:
+def authors_alignment(log: pd.DataFrame, processed: pd.DataFrame, *, rads_per_erpm: float, dt: float = 0.01,
+                      reach: int = 8) -> dict[str, Any]:
     """The motor alignment the authors applied to one flight, as a lag in the sync's convention
     (the motor stamps moved by ``-lag``), read two ways: their ``lag_samples`` field, and measured,
     the shift of their rotor speeds against the log's eRPM less the shift of their gyro against
     the log's (the index their rows carry may be off by one; the difference is the alignment).
-    Rotor speeds are compared as ``eRPM * pi / 180`` (6 pole pairs); both shifts are whole samples."""
+    Rotor speeds are compared as ``eRPM * rads_per_erpm`` (the rig's conversion,
+    :attr:`nanosysid.rig.logs.LogSpec.rads_per_erpm`); both shifts are whole samples."""
     rows = processed["Unnamed: 0"].to_numpy()
     erpm = log[["m1_erpm", "m2_erpm", "m3_erpm", "m4_erpm"]].interpolate(limit_direction="both").to_numpy()
     k_motor = _best_shift(processed[["m1_rads", "m2_rads", "m3_rads", "m4_rads"]].to_numpy(),
-                          erpm * np.pi / 180, rows, reach)
+                          erpm * rads_per_erpm, rows, reach)
     k_state = _best_shift(processed[["wx", "wy", "wz"]].to_numpy(),
                           log[["wx", "wy", "wz"]].interpolate(limit_direction="both").to_numpy(), rows, reach)
     # their motor sample of log row j + (k_motor - k_state) stands at row j: moved by that many samples
@@ -119,27 +121,24 @@ def alignment_section(sync: Sequence[Mapping[str, Any]], authors: Mapping[str, M
     for r in sync:
         own, iv = r.get("motor_lag_flight"), r.get("motor_lag_flight_interval") or [None, None]
         a = authors.get(r["flight"])
-        verdict = "–"
+        contradicts = (a is not None and iv[0] is not None
+                       and (iv[1] < a["lag"] - a["resolution"] / 2 or iv[0] > a["lag"] + a["resolution"] / 2))
+        rig_off = own is not None and iv[0] is not None and (iv[1] < lo or iv[0] > hi)
+        words = []
         if a is not None:
-            half = a["resolution"] / 2
-            if iv[0] is None:
-                verdict = "no interval"
-            elif iv[1] < a["lag"] - half or iv[0] > a["lag"] + half:
-                verdict = "contradict the authors' value"
-            else:
-                verdict = "agree with the authors' value (to their one-sample step)"
-        rig_off = (own is not None and iv[0] is not None and (iv[1] < lo or iv[0] > hi))
-        if rig_off and a is None:
-            verdict = "own lag outside the rig-level interval"
-        elif rig_off:
-            verdict += "; own lag outside the rig-level interval"
+            words.append("no interval" if iv[0] is None else "contradict the authors' value" if contradicts
+                         else "agree with the authors' value (to their one-sample step)")
+        if rig_off:
+            words.append("own lag outside the rig-level interval")
+        verdict = "; ".join(words) or "–"
         rec["flights"][r["flight"]] = {"own": own, "ci95": iv, "transients": r.get("motor_lag_flight_events"),
-                                       "authors": a, "verdict": verdict}
+                                       "authors": a, "verdict": verdict, "contradicts_authors": contradicts,
+                                       "outside_rig_interval": rig_off}
         L.append(f"| {r['flight']} | {ms(own)} | {ms(iv[0])} to {ms(iv[1])} | {r.get('motor_lag_flight_events', 0)} | "
                  + (f"{ms(a['lag'])} ({a['lag_samples_field']})" if a else "–") + f" | {verdict} |")
     L.append("")
-    contradicted = [f for f, v in rec["flights"].items() if v["authors"] and v["verdict"].startswith("contradict")]
-    apart = [f for f, v in rec["flights"].items() if "outside the rig-level" in v["verdict"]]
+    contradicted = [f for f, v in rec["flights"].items() if v["contradicts_authors"]]
+    apart = [f for f, v in rec["flights"].items() if v["outside_rig_interval"]]
     L.append((f"The data contradict the authors' alignment of {', '.join(contradicted)}. " if contradicted else
               "The data contradict none of the authors' alignments (to their one-sample step). ")
              + (f"The flights whose own lag lies outside the rig-level interval ({', '.join(apart)}) carry a motor "

@@ -84,6 +84,11 @@ class LogSpec:
     keep_incomplete: bool = False
     min_samples: int = 51
 
+    @property
+    def rads_per_erpm(self) -> float:
+        """Rotor speed (rad/s) per logged eRPM count: mechanical rpm = eRPM / pole pairs."""
+        return self.erpm_unit / self.pole_pairs * (2 * np.pi / 60)
+
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any], *, min_samples: int = 51) -> "LogSpec":
         where = "rig.logs"
@@ -275,7 +280,7 @@ def log_streams(df: pd.DataFrame, spec: LogSpec, where: str) -> tuple[dict[str, 
     erpm = values(["m1_erpm", "m2_erpm", "m3_erpm", "m4_erpm"])
     nan_erpm = np.isnan(erpm) & new_motor[:, None]
     spike = (erpm > spec.max_erpm) & new_motor[:, None]
-    rads = np.where(spike | ~np.isfinite(erpm), np.nan, erpm) * spec.erpm_unit / spec.pole_pairs * (2 * np.pi / 60)
+    rads = np.where(spike | ~np.isfinite(erpm), np.nan, erpm) * spec.rads_per_erpm
     streams["motors"] = stream(new_motor, {f"m{i + 1}": rads[:, i] for i in range(4)}, ts_motor, "motors")
     rules["missed_motor_readings"] = {f"m{i + 1}": int(nan_erpm[:, i].sum()) for i in range(4)}
     rules["spike"] = {"count": {f"m{i + 1}": int(spike[:, i].sum()) for i in range(4)},
