@@ -23,7 +23,9 @@ log = logging.getLogger("nanosysid.campaign")
 def main(cfg: DictConfig) -> dict:
     """Draw ``campaign.worlds`` worlds from ``campaign.seed``, run the worlds check on
     ``launcher`` with the configured vehicle and split, and write into ``campaign.out_dir`` (replaced atomically): ``summary.json``
-    and ``summary.md``, ``worlds.parquet``, ``recall.png``, ``confusion.png``, ``gap.png``."""
+    and ``summary.md``, ``worlds.parquet``, ``recall.png``, ``confusion.png``, ``gap.png``; then the families of
+    ``campaign.families`` (:func:`nanosysid.campaign.families`), their rows in ``families.json`` and their counts
+    in the summary."""
     c = cfg.campaign
     n, chunk = int(c.worlds), int(c.chunk)  # positive whole numbers: the config's rules check them
     spec = Launcher.from_mapping(plain(cfg.launcher))
@@ -38,8 +40,16 @@ def main(cfg: DictConfig) -> dict:
                          sync=SyncConfig.from_mapping(plain(cfg.preprocess.sync)),
                          inertia_z_range=tuple(cfg.identify.inertia_z_range))
     rows = campaign.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
+    counts = {k: int(v) for k, v in (plain(c.get("families")) or {}).items() if int(v)}
+    unknown = set(counts) - set(campaign.FAMILIES)
+    if unknown:
+        raise ConfigError(f"campaign.families: {sorted(unknown)}; the families are {', '.join(campaign.FAMILIES)}")
+    kin = campaign.families(counts, int(c.seed), start=n)
+    family_rows = campaign.check(kin, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk,
+                                 progress=True) if kin else []
     relevant = float(c.relevant)
     summary = campaign.summarize(rows, relevant=relevant)
+    summary["families"] = campaign.summarize_families(family_rows)
     effects = sorted(EFFECTS)
     table = worlds_table(rows, effects)
     described = [e for e in effects if campaign.DESCRIBED_BY[e]]
@@ -51,6 +61,10 @@ def main(cfg: DictConfig) -> dict:
             f.write_text(summary_markdown(summary, relevant=relevant))
         with atomic_file(tmp / "worlds.parquet") as f:
             table.to_parquet(f, index=False)
+        with atomic_file(tmp / "families.json") as f:
+            f.write_text(json_text([{k: r.get(k) for k in ("world", "family", "effects", "named", "ambiguous",
+                                                          "sources", "history_dropped", "inertia_z", "error")}
+                                    for r in family_rows], sort_keys=True))
         recall_figure(table, described, summary["strength_bins"], relevant, tmp / "recall.png")
         confusion_figure(table, effects, list(LIBRARY), tmp / "confusion.png")
         gap_figure(table, tmp / "gap.png")

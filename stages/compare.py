@@ -12,7 +12,8 @@ from omegaconf import DictConfig
 
 from nanosysid import identify, protocol
 from nanosysid.dataio import atomic_file, json_text
-from nanosysid.report import paper, rig, tables
+from nanosysid.identify import identified_vehicle
+from nanosysid.report import paper, realism, rig, tables
 from nanosysid.report.stats import stats_markdown, trajectory_stats
 from nanosysid.rig.logs import LogSpec
 from nanosysid.report.world import nature_thrust_coefficient, world_markdown
@@ -23,7 +24,8 @@ log = logging.getLogger("nanosysid.compare")
 
 def main(cfg: DictConfig) -> None:
     """``<paths.sim_report>/stats.md`` (and ``stats.json``: the figures and each criterion's verdict);
-    on the rig's real flights ``<rig.paths.report>/paper.md`` and ``paper.json``."""
+    on the rig's real flights ``<rig.paths.report>/paper.md`` and ``paper.json``, and the default world
+    beside them, ``world.md`` and ``world.json``."""
     if str(cfg.data.source) == "rig":
         return rig_main(cfg)
     names = [m for m in paper.PAPER_MODELS if m in cfg.models]
@@ -85,6 +87,11 @@ def rig_main(cfg: DictConfig) -> None:
              stats_markdown(trajectory_stats(bench.train + bench.test), what="the rig's").replace("# ", "## ", 1),
              paper.results_markdown(comparison)]
     out = Path(cfg.rig.paths.report)
+    world = _world_beside(cfg, bench, sync)
+    with atomic_file(out / "world.md") as tmp:
+        tmp.write_text(realism.markdown(world))
+    with atomic_file(out / "world.json") as tmp:
+        tmp.write_text(json_text(world))
     with atomic_file(out / "paper.md") as tmp:
         tmp.write_text("\n".join(parts))
     with atomic_file(out / "paper.json") as tmp:
@@ -92,6 +99,20 @@ def rig_main(cfg: DictConfig) -> None:
                                   "motor_lag": lag_rec, "pattern": comparison.to_dict()}))
     log.info("compare: %d models on the rig's flights; worse than the paper by over %.0f%%: %s", len(names),
              100 * rig.WORSE, ", ".join(results["worse"]) or "none")
+
+
+def _world_beside(cfg: DictConfig, bench, sync) -> dict:
+    """The default world's flights (the simulated pipeline's split, its identified k_F and k_M,
+    its motor lag) beside the rig's (:mod:`nanosysid.report.realism`)."""
+    p = cfg.rig.paths
+    sim_bench = protocol.load(p.world_split, horizon=int(cfg.eval.horizon))
+    w, o = int(cfg.identify.savgol_window), int(cfg.identify.savgol_order)
+    sim_vehicle = identified_vehicle(vehicle_of(cfg), str(Path(p.world_identify) / "params.json"))
+    rig_vehicle = identified_vehicle(vehicle_of(cfg), str(Path(cfg.identify.out_dir) / "params.json"))
+    sim_sync = json.loads((Path(p.world_data_report) / "sync.json").read_text())
+    return realism.compare(realism.world_figures(sim_bench.train + sim_bench.test, sim_vehicle, w, o),
+                           realism.world_figures(bench.train + bench.test, rig_vehicle, w, o),
+                           (float(sim_sync[0]["motor_lag"]), float(sync[0]["motor_lag"])))
 
 
 if __name__ == "__main__":

@@ -122,3 +122,55 @@ def test_the_columns_side_by_side_times_theta_are_the_c_paths_wrench_of_every_en
     assert torch.allclose(got, expected, rtol=1e-12, atol=1e-12 * expected.abs().max().item())
     one = effects.features(names, x[3], om[3], om_dot[3], v)  # one sample, unbatched
     assert torch.allclose(one @ torch.from_numpy(theta), expected[3], rtol=1e-12, atol=1e-12 * expected.abs().max().item())
+
+
+def _mixer(v, s):
+    """Thrust and roll, pitch, yaw torques of squares ``s (n, 4)``, the rotor layout worked out by hand."""
+    kl = v.k_f * v.arm
+    return np.column_stack([v.k_f * s.sum(axis=1), kl * (-s[:, 0] - s[:, 1] + s[:, 2] + s[:, 3]),
+                            kl * (-s[:, 0] + s[:, 1] + s[:, 2] - s[:, 3]),
+                            v.k_m * (-s[:, 0] + s[:, 1] - s[:, 2] + s[:, 3])])
+
+
+def test_slow_actuation_is_the_mixer_of_each_rotors_lag_behind_a_speed_step():
+    # rotor speeds stepping at t = 0 from rest at s0 to s1: a first-order lag of time constant T
+    # reads s1 + (s0 - s1) exp(-t / T) at every sample (the exact response to a held step)
+    v = Vehicle()
+    dt, n = 0.01, 300
+    s0, s1 = np.array([1.6e6, 2.0e6, 1.8e6, 2.2e6]), np.array([2.5e6, 1.9e6, 2.4e6, 2.0e6])
+    s = np.where(np.arange(n)[:, None] >= 1, s1, s0)
+    om = torch.from_numpy(np.sqrt(s))[None]
+    slow = effects.slow_squares(om, dt)[0].numpy()  # (n, 4 K)
+    t = (np.arange(n) - 1) * dt
+    for k, T in enumerate(effects.SLOW_TIMES):
+        expected = np.where(t[:, None] >= 0, s1 + (s0 - s1) * np.exp(-(t[:, None] + dt) / T), s0)
+        assert np.allclose(slow[:, 4 * k:4 * k + 4], expected, rtol=1e-9)
+    x = torch.zeros(n, 13, dtype=torch.float64)
+    x[:, 9] = 1.0
+    cols = effects.features(["slow_actuation"], x, om[0], torch.zeros_like(om[0]), v,
+                            s_slow=torch.from_numpy(slow)).numpy()  # (n, 6, K)
+    for k in range(len(effects.SLOW_TIMES)):
+        lag = slow[:, 4 * k:4 * k + 4] - s
+        assert np.allclose(cols[:, 2:, k], _mixer(v, lag), rtol=1e-9, atol=1e-12)
+        assert np.all(cols[:, :2, k] == 0)
+    # without the history the entry adds nothing (a model fed no history must not invent one)
+    assert np.all(effects.features(["slow_actuation"], x, om[0], torch.zeros_like(om[0]), v).numpy() == 0)
+
+
+def test_a_window_continues_the_flights_lag_where_it_is_given_its_state():
+    rng = np.random.default_rng(3)
+    om = torch.from_numpy(rng.uniform(1500, 2500, (2, 400, 4)))
+    whole = effects.slow_squares(om, 0.01)  # the flight's filter (a whole flight: scipy's recursion)
+    tail = effects.slow_squares(om[:, 300:], 0.01, start=whole[:, 299])  # a window given the state before it
+    assert torch.allclose(tail, whole[:, 300:], rtol=1e-12)
+
+
+def test_battery_thrust_scales_the_rotor_wrench_with_the_voltage_off_its_reference():
+    rng = np.random.default_rng(4)
+    v = Vehicle()
+    x, om = _inputs(rng, 16)
+    vbat = torch.from_numpy(rng.uniform(3.3, 4.2, 16))
+    cols = effects.features(["battery_thrust"], x, om, torch.zeros_like(om), v, vbat=vbat).numpy()[..., 0]
+    dv = vbat.numpy()[:, None] - 3.7  # a 1S LiPo's mid charge
+    assert np.allclose(cols[:, 2:], dv * _mixer(v, om.numpy() ** 2), rtol=1e-12)
+    assert np.all(cols[:, :2] == 0)

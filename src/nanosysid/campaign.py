@@ -41,7 +41,7 @@ from nanosysid.vehicle import Vehicle
 
 __all__ = ["DESCRIBED_BY", "OUT_OF_LIBRARY", "HiddenWorld", "Setup", "draw", "simulate", "judge", "check", "summarize",
            "identification", "summarize_identification", "library_truth", "coefficient_coverage",
-           "short_flights_config", "lag_evidence", "STRENGTH_BINS"]
+           "short_flights_config", "lag_evidence", "STRENGTH_BINS", "FAMILIES", "families", "summarize_families"]
 
 
 
@@ -107,6 +107,8 @@ class HiddenWorld:
     user: str | None = None
     user_strength: float = 0.0
     seed: int = 0
+    family: str = "mixed"
+    runs: int = 1  # runs of each training trajectory (two: runs of one reference to compare)
 
     def extra_wrench(self, vehicle: Vehicle):
         """The user effect as the simulator's ``extra_wrench`` on ``vehicle`` (None: none)."""
@@ -134,6 +136,34 @@ def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3
             user = str(rng.choice(sorted(OUT_OF_LIBRARY)))
             us = float(f"{math.exp(rng.uniform(math.log(0.3), math.log(3.0))):.3g}")
         out.append(HiddenWorld(i, effects, user, us, int(rng.integers(1, 2**31 - 1))))
+    return out
+
+
+# The families of worlds that test what a disagreement no function of the state explains is a
+# function of: a slow lag of the rotors' wrench alone, turbulence alone (both flown twice per
+# training trajectory, so that runs of one reference can be compared), and worlds of state
+# effects alone, which must never get that verdict
+STATE_ONLY = ("com_offset", "motor_asymmetry", "rotor_inertia", "rotor_drag", "body_drag", "inertia_offset")
+FAMILIES = {"thrust_lag": ("thrust_lag",), "turbulence": ("turbulence",), "state": STATE_ONLY}
+
+
+def families(counts: Mapping[str, int], seed: int = 0, *, start: int = 0) -> list[HiddenWorld]:
+    """Worlds of each family of :data:`FAMILIES` (``counts``: family -> number), indices from
+    ``start``: the single-effect families at strengths log-uniform in 0.5..3, the state family
+    with 2 to 4 of its effects at 0.3..3; every training trajectory flown twice."""
+    rng = np.random.default_rng([seed, 7])
+    out, i = [], start
+    for fam, n in counts.items():
+        names = FAMILIES[fam]
+        for _ in range(int(n)):
+            if len(names) == 1:
+                effects = {names[0]: float(f"{math.exp(rng.uniform(math.log(0.5), math.log(3.0))):.3g}")}
+            else:
+                k = int(rng.integers(2, 5))
+                effects = {e: float(f"{math.exp(rng.uniform(math.log(0.3), math.log(3.0))):.3g}")
+                           for e in sorted(rng.choice(names, size=k, replace=False).tolist())}
+            out.append(HiddenWorld(i, effects, None, 0.0, int(rng.integers(1, 2**31 - 1)), family=fam, runs=2))
+            i += 1
     return out
 
 
@@ -205,9 +235,10 @@ def simulate(worlds: Sequence[HiddenWorld], setup: Setup | None = None, *,
     for w in worlds:
         extra = w.extra_wrench(setup.vehicle)
         for tr in setup.trajectories:
-            specs.append(sim.FlightSpec(trajectory=tr, run=1, effects=w.effects, seed=w.seed,
-                                        extra_wrench=extra, name=f"{tr}_w{w.index}_run1"))
-            keys.append((w.index, None))
+            for run in range(1, (w.runs if tr in setup.train else 1) + 1):
+                specs.append(sim.FlightSpec(trajectory=tr, run=run, effects=w.effects, seed=w.seed,
+                                            extra_wrench=extra, name=f"{tr}_w{w.index}_run{run}"))
+                keys.append((w.index, None))
         for e in w.effects:
             rest = {k: v for k, v in w.effects.items() if k != e}
             specs.append(sim.FlightSpec(trajectory=setup.test, run=1, effects=rest, seed=w.seed,
@@ -281,7 +312,50 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
         "gap_share": float(sum((r.before.simerr[q] - reachable[q]) / r.before.simerr[q] for q in r.before.simerr) / 4),
         "identify": ident,
         "coverage": coefficient_coverage(world, r.findings, setup.vehicle),
+        "family": world.family,
+        "sources": [(f.evidence.get("source") or {}).get("source", "undecided")
+                    for f in r.findings if f.verdict == discover.STATELESS],
+        "history_dropped": [d["entry"] for d in r.dropped],
+        "inertia_z": _inertia_z(world, r, setup),
     }
+
+
+def _inertia_z(world: HiddenWorld, r, setup: Setup) -> dict[str, Any]:
+    """The augmented model's yaw inertia against the world's, and whether discovery says it
+    identified it (the inertia correction chosen with an interval inside the plausible range)."""
+    true = sim.World(dict(world.effects)).inertia(setup.vehicle)[2]
+    model = r.vehicle.inertia[2]
+    f = next((f for f in r.findings if f.entry == "inertia"), None)
+    claimed = f is not None and "inertia_z_range" not in f.evidence
+    return {"true": float(true), "model": float(model), "error": float(model / true - 1), "claimed": bool(claimed)}
+
+
+def summarize_families(rows: Sequence[dict[str, Any]], *, tolerance: float = 0.10) -> dict[str, Any]:
+    """Per family of :data:`FAMILIES`: how often the slow lag is named, how often a finding is
+    called "not a function of the state" and what of (time, the input history, undecided), and
+    the yaw inertia within ``tolerance`` of the truth or not claimed identified."""
+    out = {}
+    for fam in FAMILIES:
+        rs = [r for r in rows if r.get("family") == fam and "error" not in r]
+        if not rs:
+            continue
+        out[fam] = {
+            "worlds": len(rs),
+            "failed": sum(1 for r in rows if r.get("family") == fam and "error" in r),
+            "slow_actuation_named": sum("slow_actuation" in r["named"] for r in rs),
+            "slow_actuation_offered": sum("slow_actuation" in r["named"] or any("slow_actuation" in a for a in r["ambiguous"])
+                                          for r in rs),
+            "slow_actuation_dropped": sum("slow_actuation" in r["history_dropped"] for r in rs),
+            "stateless": sum(bool(r["sources"]) for r in rs),
+            "of_time": sum("time" in r["sources"] for r in rs),
+            "of_history": sum("the input history" in r["sources"] for r in rs),
+            "inertia_z_within": sum(abs(r["inertia_z"]["error"]) <= tolerance for r in rs),
+            "inertia_z_claimed": sum(r["inertia_z"]["claimed"] for r in rs),
+            "inertia_z_claimed_within": sum(r["inertia_z"]["claimed"] and abs(r["inertia_z"]["error"]) <= tolerance
+                                            for r in rs),
+            "inertia_z_tolerance": tolerance,
+        }
+    return out
 
 
 def library_truth(effects: dict[str, float], vehicle: Vehicle) -> dict[str, dict[str, float]]:

@@ -33,9 +33,11 @@ Rotor layout and spin directions are :mod:`nanosysid.dynamics`'.
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -44,7 +46,8 @@ from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, signed_sum
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["CHANNELS", "Signals", "Effect", "LIBRARY", "NOMINAL", "DELAY", "TERM_SIGNALS", "signals", "features",
-           "wrench", "split_coefficients", "entry", "term_name", "apply_corrections", "refitted_vehicle"]
+           "wrench", "split_coefficients", "entry", "term_name", "apply_corrections", "refitted_vehicle", "SLOW_TIMES",
+           "VBAT_REF", "slow_squares"]
 
 CHANNELS = ("F_x", "F_y", "F_z", "tau_x", "tau_y", "tau_z")
 
@@ -59,6 +62,11 @@ class Signals:
         w: Body rates (rad/s), 3.
         om: Rotor speeds (rad/s), 4; ``s`` their squares; ``om_dot`` their rates (rad/s^2).
         z: Height (m) above the floor, the position's z.
+        s_slow: The squares' history: each rotor's ``Omega_i^2`` through a first-order low-pass of
+            each time constant of :data:`SLOW_TIMES`, ``4 * len(SLOW_TIMES)`` components (time
+            constant major); empty where the history is not given (the entries that need it
+            then add nothing).
+        vbat: Battery voltage (V); None where not measured.
     """
 
     v: Sequence[Any]
@@ -67,6 +75,8 @@ class Signals:
     s: Sequence[Any]
     om_dot: Sequence[Any]
     z: Any
+    s_slow: Sequence[Any] = ()
+    vbat: Any = None
 
 
 Columns = Callable[[Signals, Vehicle], list[list[Any]]]
@@ -88,6 +98,8 @@ class Effect:
         kind: ``"wrench"``, ``"correction"`` or ``"delay"``.
         excited_by: The manoeuvre that shows this effect apart from others (said when the data
             cannot tell it from another entry).
+        needs: What its columns read beyond the state and the rotor speeds: ``"history"`` (the
+            rotor speeds' past, :attr:`Signals.s_slow`), ``"vbat"`` (the battery voltage).
     """
 
     name: str
@@ -107,6 +119,7 @@ class Effect:
     # number of columns where it differs from the number of physical parameters (``physical``
     # maps the columns' coefficients to them)
     width: int | None = None
+    needs: tuple[str, ...] = ()
 
     @property
     def n_columns(self) -> int:
@@ -223,6 +236,45 @@ def _rotor_gyro(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     return rows
 
 
+# Time constants (s) of the rotor-speed history the slow actuation is written over: a kernel of
+# three exponentials spans the band the paper reports its unexplained torque in (0.4-1.2 Hz)
+SLOW_TIMES = (0.1, 0.3, 1.0)
+# Battery voltage (V) at which the refitted k_F holds: a 1S LiPo's mid charge
+VBAT_REF = 3.7
+
+
+def _rotor_wrench_rows(vehicle: Vehicle, per_rotor: Sequence[Any]) -> tuple[Any, Any, Any, Any]:
+    """Thrust and roll/pitch/yaw torques of the quadratic rotor model applied to ``per_rotor``
+    in place of the squares."""
+    kl = vehicle.k_f * vehicle.arm
+    return (vehicle.k_f * _sum(per_rotor), kl * signed_sum(ROTOR_Y, per_rotor),
+            kl * signed_sum([-x for x in ROTOR_X], per_rotor), vehicle.k_m * signed_sum([-c for c in SPIN], per_rotor))
+
+
+def _slow_actuation(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+    # rotor i gives k (Omega_i^2 + sum_k g_k (LP_k(Omega_i^2) - Omega_i^2)): part of its thrust and
+    # drag torque follows the measured speed through a lag of time constant T_k
+    rows = _zero_rows(len(SLOW_TIMES))
+    if not sg.s_slow:
+        return rows
+    for k in range(len(SLOW_TIMES)):
+        lag = [sg.s_slow[4 * k + i] - sg.s[i] for i in range(4)]
+        for r, value in zip((2, 3, 4, 5), _rotor_wrench_rows(vehicle, lag)):
+            rows[r][k] = value
+    return rows
+
+
+def _battery(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
+    # k_F and k_M (1 + c (V - V_ref)): the rotors' whole wrench scales with the voltage
+    rows = _zero_rows(1)
+    if sg.vbat is None:
+        return rows
+    dv = sg.vbat - VBAT_REF
+    for r, value in zip((2, 3, 4, 5), _rotor_wrench_rows(vehicle, sg.s)):
+        rows[r][0] = dv * value
+    return rows
+
+
 def _nominal(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     """Corrections of the nominal coefficients: k_F on the thrust and k_M on the yaw torque. The
     roll/pitch torques' scale k_F L is the ``arm`` correction's: refitted with the thrust, a
@@ -316,6 +368,19 @@ LIBRARY: dict[str, Effect] = {e.name: e for e in (
     Effect("rotor_gyro", "rotor inertia J_r: gyroscopic torque -ω × (0, 0, J_r Σ s_i Ω_i) and yaw reaction "
            "-J_r Σ s_i dΩ_i/dt", ("J_r [kg m²]",), _rotor_gyro, ("R", "w"), (1,),
            excited_by="quick yaw-rate changes and roll/pitch rates during yaw"),
+    Effect("slow_actuation", "slow actuation dynamics: part of each rotor's thrust and drag torque follows k Ω_i² "
+           "through first-order lags, k (Ω_i² + Σ_k g_k (LP_{T_k}(Ω_i²) - Ω_i²)), T_k = "
+           + ", ".join(f"{t:g}" for t in SLOW_TIMES) + " s (the benchmark paper's hypothesis for its low-frequency "
+           "roll/pitch torque; a rotor's thrust lagging its speed: Bangura and Mahony 2012, unsteady inflow "
+           "of small rotors)", tuple(f"g_{t:g}s [-]" for t in SLOW_TIMES), _slow_actuation,
+           ("p", "v", "R", "w"), (0,) * len(SLOW_TIMES),
+           excited_by="throttle and attitude steps held for longer than the lag (a square's corners), flown twice: "
+           "the lag repeats with the reference, a disturbance does not", bound=1.0, needs=("history",)),
+    Effect("battery_thrust", "thrust and drag torque scaling with the battery voltage, k (1 + c (V - 3.7 V)) "
+           "(Bitcraze: 'Keeping thrust consistent as the battery drains', 2025; the firmware's compensation "
+           "filters the voltage with τ = 0.1 s and saturates below about 3.13 V)", ("c [1/V]",), _battery,
+           ("p", "v", "R", "w"), (0,), excited_by="long flights that drain the battery: the same manoeuvre early "
+           "and late", needs=("vbat",)),
     Effect("inertia", "the body's inertia off its nominal diagonal: J + diag(dJ)",
            ("dJ_x [kg m²]", "dJ_y [kg m²]", "dJ_z [kg m²]"), _inertia, ("R", "w"), (0, 0, 0), "correction",
            "roll and pitch rates during fast yaw: only the inertia has the gyroscopic w x J w",
@@ -387,17 +452,48 @@ def entry(name: str) -> Effect:
         raise KeyError(f"no effect {name!r} in the library; known: {', '.join(LIBRARY)}") from None
 
 
-def signals(x: Tensor, om: Tensor, om_dot: Tensor) -> Signals:
-    """The components of batched state ``(..., 13)``, rotor speeds and rates ``(..., 4)``."""
+def signals(x: Tensor, om: Tensor, om_dot: Tensor, s_slow: Tensor | None = None, vbat: Tensor | None = None) -> Signals:
+    """The components of batched state ``(..., 13)``, rotor speeds and rates ``(..., 4)``, the
+    squares' history ``(..., 4 * len(SLOW_TIMES))`` (:func:`slow_squares`) and the battery
+    voltage ``(...,)`` where given."""
     v_b = so3.quat_rotate(so3.quat_conj(x[..., 6:10]), x[..., 3:6])
     return Signals(v=v_b.unbind(-1), w=x[..., 10:13].unbind(-1), om=om.unbind(-1), s=(om * om).unbind(-1),
-                   om_dot=om_dot.unbind(-1), z=x[..., 2])
+                   om_dot=om_dot.unbind(-1), z=x[..., 2], s_slow=() if s_slow is None else s_slow.unbind(-1),
+                   vbat=vbat)
 
 
-def features(names: Sequence[str], x: Tensor, om: Tensor, om_dot: Tensor, vehicle: Vehicle) -> Tensor:
+def slow_squares(om: Tensor, dt: float, start: Tensor | None = None) -> Tensor:
+    """Each rotor's ``Omega_i^2`` through a first-order low-pass of each of :data:`SLOW_TIMES`,
+    causal along the time axis of ``om (B, T, 4)`` (rad/s): ``(B, T, 4 * len(SLOW_TIMES))``,
+    time constant major. The filter starts at ``start (B, 4 * len)`` (None: at rest at the first
+    sample, as a flight starts from a hover); each step is the exact response to a square held
+    over ``dt`` s."""
+    s = om * om
+    a = [1.0 - math.exp(-dt / t) for t in SLOW_TIMES]
+    state = s[:, 0].repeat(1, len(SLOW_TIMES)) if start is None else start
+    if s.shape[1] > 256 and not s.requires_grad:
+        # a whole flight: the same recursion as scipy's filter (y_n = (1 - a) y_(n-1) + a x_n)
+        from scipy.signal import lfilter
+
+        x = s.repeat(1, 1, len(SLOW_TIMES)).cpu().numpy()
+        cols = [lfilter([ak], [1.0, ak - 1.0], x[:, :, 4 * k:4 * k + 4], axis=1,
+                        zi=((1.0 - ak) * state[:, 4 * k:4 * k + 4].cpu().numpy())[:, None, :])[0]
+                for k, ak in enumerate(a)]
+        return torch.from_numpy(np.concatenate(cols, axis=-1)).to(om)
+    gain = torch.tensor([x for x in a for _ in range(4)], dtype=om.dtype, device=om.device)
+    out = []
+    for k in range(s.shape[1]):
+        state = state + gain * (s[:, k].repeat(1, len(SLOW_TIMES)) - state)
+        out.append(state)
+    return torch.stack(out, dim=1)
+
+
+def features(names: Sequence[str], x: Tensor, om: Tensor, om_dot: Tensor, vehicle: Vehicle, *,
+             s_slow: Tensor | None = None, vbat: Tensor | None = None) -> Tensor:
     """The columns of the named effects side by side, ``(..., 6, sum P)``: the regression's
-    features, and with coefficients ``theta`` the augmented model's wrench ``features @ theta``."""
-    sg = signals(x, om, om_dot)
+    features, and with coefficients ``theta`` the augmented model's wrench ``features @ theta``.
+    ``s_slow`` and ``vbat``: see :func:`signals` (the entries that need them are zero without)."""
+    sg = signals(x, om, om_dot, s_slow, vbat)
     # most entries are the constant 0: the output starts as zeros, and the signal columns and the
     # other constants go in with one copy each (the regression's and every rollout step's cost)
     cols: list[Tensor] = []

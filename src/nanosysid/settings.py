@@ -117,17 +117,18 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("export.mcu.start", NONNEG_COUNT), ("export.mcu.steps", COUNT), ("export.mcu.tolerance", POSITIVE),
     # discovery (its oracle is a model's block)
     ("discover.folds", TWO_OR_MORE), ("discover.block", POSITIVE), ("discover.alpha", SHARE), ("discover.share", SHARE),
-    ("discover.sindy", FLAG), ("discover.out_dir", TEXT), ("discover.report_dir", TEXT),
+    ("discover.sindy", FLAG), ("discover.flights_out", FLAG), ("discover.out_dir", TEXT), ("discover.report_dir", TEXT),
     ("discover.identified", TEXT_OR_NULL),
     ("discover.savgol_window", COUNT), ("discover.savgol_order", NONNEG_COUNT),
     ("discover.delay_step", POSITIVE), ("discover.delay_max", NONNEG),
     ("discover.oracle.dt", POSITIVE), ("discover.oracle.substeps", COUNT), ("discover.oracle.effects.*", NONNEG),
     ("discover.oracle.rotor_delay", NONNEG_OR_NULL), ("discover.oracle.compile", FLAG), ("discover.oracle.*", TEXT),
+    ("discover.reference.*", FREE),  # a model's block (the physics model scored beside)
     ("discover.oracle", FREE),  # a model's block, or null where no oracle applies (real data)
     # the campaign and the launcher
     ("campaign.worlds", COUNT), ("campaign.chunk", COUNT), ("campaign.duration", POSITIVE),
     ("campaign.user_share", NONNEG), ("campaign.max_effects", NONNEG_COUNT), ("campaign.relevant", NONNEG),
-    ("campaign.out_dir", TEXT),
+    ("campaign.out_dir", TEXT), ("campaign.families.*", NONNEG_COUNT),
     ("launcher.workers", COUNT_OR_NULL), ("launcher.threads", COUNT), ("launcher.time_min", COUNT),
     ("launcher.mem_gb", POSITIVE), ("launcher.cpus_per_task", COUNT), ("launcher.partition", TEXT_OR_NULL),
     ("launcher.kind", ("local", "slurm")), ("launcher.cluster", ("slurm", "local", "debug")), ("launcher.*", TEXT),

@@ -15,10 +15,11 @@ Example::
 
 **The nominal model** is ``physics_full`` (rigid body with the torque equation) with k_F and k_M as
 the identify stage found them on the training flights (identified here when no vehicle is
-given); k_F and k_M are refitted alongside every candidate. **The candidates** are the library of
-:mod:`nanosysid.effects` (knowledge from the literature, several forms of one effect where the
-literature has several, and corrections of the nominal mass, inertia and arm); this package
-never imports the simulator's world.
+given); k_F and k_M are refitted alongside every candidate (least squares), and the identify
+stage's k_M is reported beside the refit (``hold_k_m`` holds it instead). **The candidates**
+are the library of :mod:`nanosysid.effects` (knowledge from the literature, several forms of one
+effect where the literature has several, the actuation's lag and battery, and corrections of
+the nominal mass, inertia and arm); this package never imports the simulator's world.
 
 **The rule.** Residuals are weighted by their noise floor (:func:`~nanosysid.discover.fit.noise_floor`,
 estimated from the measurements), cut into blocks of ``block`` seconds and dealt to ``folds`` folds;
@@ -79,16 +80,19 @@ from nanosysid.dataio import Flight
 from nanosysid.discover.analysis import disagreement
 from nanosysid.discover.assemble import assemble, sindy_baseline
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
-from nanosysid.discover.records import STATELESS, VERDICTS, Candidate, DiscoveryResult, Finding, Pick
+from nanosysid.discover.records import STATELESS, UNSTABLE, VERDICTS, Candidate, DiscoveryResult, Finding, Pick
 from nanosysid.discover.search import Search
-from nanosysid.discover.select import prune, select
+from nanosysid.discover import stability
+from nanosysid.discover.select import check_history, prune, select
+from nanosysid.discover.sources import reference_pairs
 from nanosysid.discover.verdicts import coefficients, named, stateless, unnamed
 from nanosysid.effects import CHANNELS, LIBRARY
 from nanosysid.errors import ConfigError, DataError
 from nanosysid.identify import identify
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["run", "Finding", "DiscoveryResult", "Candidate", "Pick", "VERDICTS", "STATELESS", "CHANNELS", "LIBRARY",
+__all__ = ["run", "Finding", "DiscoveryResult", "Candidate", "Pick", "VERDICTS", "STATELESS", "UNSTABLE", "CHANNELS",
+           "LIBRARY",
            "MIN_TRAVEL", "MIN_RATE"]
 
 
@@ -116,7 +120,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         alpha: float = 0.01, floor: float = 0.25, share: float = 0.5, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005),
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
         oracle: Any = None, limit: Any = None, analysis: bool = True, sindy: bool = False,
-        inertia_z_range: tuple[float, float] | None = None, batch_size: int = 8192) -> DiscoveryResult:
+        inertia_z_range: tuple[float, float] | None = None, batch_size: int = 8192, flights_out: bool = False,
+        hold_k_m: bool = False, progress: bool = False) -> DiscoveryResult:
     """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
 
     Args:
@@ -139,6 +144,16 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         sindy: Also fit and score the plain SINDy discrepancy model (generic terms only, no names).
         inertia_z_range: The yaw inertia's plausible range (kg m²): the yaw inertia correction's
             interval reaches all of it (the flights tell yaw ratios to J_z, not J_z).
+        flights_out: Also run the search without each training flight in turn
+            (:mod:`nanosysid.discover.stability`): fold stability, intervals from flights, and
+            the verdict ``unstable`` for a named one that holds on too few folds.
+        hold_k_m: Hold k_M at the given vehicle's instead of refitting it with every candidate.
+            Refitting (the default) is least squares on closed-loop flights, which the identify
+            stage's instrumental variables avoid; holding leaves every effect that bends the
+            yaw torque's relation to the rotor speeds (a lag of the rotors' wrench) to be fitted
+            against a k_M estimated without it, which on simulated worlds with such a lag keeps
+            the lag from being named. Both values are reported.
+        progress: A progress bar over those folds.
     """
     if len(train_flights) < 1:
         raise DataError("discover needs at least 1 training flight")
@@ -148,20 +163,27 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     if v is None:
         thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)
         v = dataclasses.replace(Vehicle(), k_f=thrust.coef, k_m=yaw.coef)
-    search = Search(train_flights, v, window, order, block, folds)
+    search = Search(train_flights, v, window, order, block, folds, hold_k_m=hold_k_m and vehicle is not None)
     _check_blocks(search, alpha, block)
     delays = tuple(float(d) for d in delays)
     total = float(search.grams(0.0).et.sum())
 
+    pairs = reference_pairs(search.flights, [d.t for d in search.data(0.0)])
     selection = prune(search, select(search, delays, alpha=alpha, floor=floor, total=total), share)
+    selection = check_history(search, selection, pairs)
     fit = coefficients(search, selection, v, inertia_z_range)
     findings = named(search, selection, fit, v, delays, inertia_z_range)
     rest = unnamed(search, selection, alpha=alpha, floor=floor, total=total)
     findings += rest.findings
     # a residual above the noise floor that no function of the state captures (a disturbance of
     # its own time, say) is said, never left silent
-    findings += stateless(rest.left, search, alpha, floor, total)
+    findings += stateless(rest.left, search, alpha, floor, total, pairs, selection.delay)
     findings.sort(key=lambda f: -f.evidence["heldout_gain"])
+    folds_out = []
+    if flights_out and len(train_flights) >= 3:
+        folds_out = stability.leave_one_flight_out(search, selection, v, delays, alpha=alpha, floor=floor,
+                                                   share=share, progress=progress)
+        stability.apply(findings, folds_out, search, selection)
     model, augmented_vehicle = assemble(v, selection.chosen, fit.coef, selection.delay, rest.terms, findings,
                                         train_flights, horizon=horizon, batch_size=batch_size)
 
@@ -172,6 +194,11 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
 
     result = DiscoveryResult(findings, score(nominal), score(model), model, nominal, augmented_vehicle,
                              selection.rounds, alpha, floor, search.noise, score(oracle) if oracle else None)
+    result.dropped = [{"entry": pk.name, "history": pk.history} for pk in selection.dropped]
+    result.folds = folds_out
+    result.pairs = pairs.described([f.name for f in search.flights])
+    result.k_m = {"given": float(v.k_m), "held": bool(search.hold_k_m),
+                  "least_squares": float(v.k_m + search.free_k_m(selection.chosen, selection.delay))}
     if limit is not None:
         result.limit = score(limit)
     if sindy:

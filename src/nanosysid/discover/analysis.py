@@ -90,15 +90,91 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
     from scipy.signal import welch  # here: scipy.signal costs 0.6 s, and every predictor imports the package
 
     dt = float(np.median(np.diff(search.flights[0].t)))
-    bands = {}
+    bands, spectra = {}, {}
     for label, arr in (("before", b), ("after", a)):
         freq, psd = welch(arr, fs=1 / dt, nperseg=256, axis=0)
         df = freq[1] - freq[0]
         bands[label] = [[float(psd[(freq >= lo) & (freq < hi), c].sum() * df) for c in range(6)] for lo, hi in BANDS]
+        keep = freq <= BANDS[-1][1]
+        spectra["freq"] = [float(x) for x in freq[keep]]
+        spectra[label] = [[float(x) for x in psd[keep, c]] for c in range(6)]
     out["bands"] = {"edges": [list(bd) for bd in BANDS], **bands}
+    out["spectra"] = spectra
+    out["predictable"], fits = predictable(search, delay, a)
+    # the data's limit in the benchmark: the augmented model given, on the test flights, every
+    # part of the residual it leaves that the measured signals predict (fitted on the training flights)
+    lib_all = search.terms(delay)[0]
+    extra = []
+    for d in test:
+        X = _limit_columns(lib_all, d)
+        w = np.zeros((len(d.r) + 2 * EDGE, 6))
+        w[EDGE:-EDGE] = np.column_stack([X[c][:, keep] @ coef for c, (keep, coef) in enumerate(fits)])
+        extra.append(w)
+    out["limit_simerr"] = _with_extra(result.model, test_flights, extra, horizon, batch_size)
     out["samples"] = {"train": int(len(b)), "test": int(sum(len(d.r) for d in test))}
     out["scatter"] = _scatter(result, train, names, theta, generic_fits, lib, var, 1 / dt)
     return out
+
+
+def predictable(search, delay: float, left: np.ndarray) -> dict[str, Any]:
+    """How much of the residual ``left (N, 6)`` (N, N m) that discovery leaves any function of
+    the measured signals could still predict: per channel, the held-out share of its power that
+    a least-squares fit (block folds, as every score of discovery) explains with the generic
+    terms of the state (products up to degree two), the rotor speeds' history (the slow
+    actuation's columns at every time constant) and the battery voltage's (where measured).
+    In closed loop the rotor speeds carry the controller's answer to a disturbance too, so the
+    share is an upper bound of what a model of the measured signals can reach; what it leaves is
+    unpredictable from them. Also returns, per channel, the columns kept and their coefficients
+    fitted on every training block."""
+    data = search.data(delay)
+    lib = search.terms(delay)[0]
+    per = [_limit_columns(lib, d) for d in data]
+    g = search.grams(delay)
+    fold = g.fold[search.blocks]
+    out: dict[str, Any] = {"share": [], "power": []}
+    fits = []
+    for c in range(6):
+        X = np.concatenate([p[c] for p in per])
+        keep = np.any(X != 0, axis=0)
+        X = X[:, keep]
+        y = left[:, c]
+        scale = np.maximum(np.abs(X).max(axis=0), 1e-300)
+
+        def fit(rows):
+            return np.linalg.lstsq(X[rows] / scale, y[rows], rcond=1e-10)[0] / scale
+
+        sse = 0.0
+        for k in range(g.folds):
+            tr, te = fold != k, fold == k
+            sse += float(((y[te] - X[te] @ fit(tr)) ** 2).sum())
+        power = float((y ** 2).sum())
+        out["share"].append(max(0.0, 1.0 - sse / power) if power > 0 else 0.0)
+        out["power"].append(float(np.sqrt(power / len(y))))
+        fits.append((keep, fit(slice(None))))
+    out["battery"] = bool(any(np.any(d.features["battery_thrust"] != 0) for d in data))
+    return out, fits
+
+
+def _limit_columns(lib, d) -> list[np.ndarray]:
+    """Per channel, the columns of the data's limit on one flight's regression data ``d``: the
+    generic terms of the state, the slow actuation's and the battery's columns of the channel."""
+    terms = lib(d.terms)
+    return [np.column_stack([terms, d.features["slow_actuation"][:, c], d.features["battery_thrust"][:, c]])
+            for c in range(6)]
+
+
+def _with_extra(model, flights, extra, horizon, batch_size) -> dict[str, float]:
+    """SimErr of ``model`` on ``flights`` given a known extra body wrench ``(T, 6)`` per flight."""
+    sums = {k: [] for k in ("p", "v", "R", "w")}
+    for f, r in zip(flights, extra):
+        y0, u, y = protocol.windows(f, horizon)
+        ex = np.lib.stride_tricks.sliding_window_view(r, horizon, axis=0)[:len(y0)].transpose(0, 2, 1)
+        pred = np.concatenate([model(y0[s:s + batch_size], u[s:s + batch_size], ex[s:s + batch_size])
+                               for s in range(0, len(y0), batch_size)])
+        for k, v in protocol.score(y, pred).simerr.items():
+            sums[k].append(v)
+    # the mean of the flights' curves, as protocol.evaluate averages the test flights
+    return {k: float(np.mean(v)) for k, v in sums.items()}
 
 
 def _rollout_shares(result, search, flights, horizon, batch_size) -> dict[str, Any]:
@@ -162,7 +238,7 @@ def _scatter(result, train, names, theta, generic_fits, lib, var, fs, n_max: int
         if f.entry in offs:
             X = np.concatenate([d.features[f.entry] for d in train])
             contrib = X @ theta[offs[f.entry]]
-        elif f.verdict == "unnamed":
+        elif f.verdict == "unnamed" and not f.evidence.get("saturated"):
             for c, coef in generic_fits:
                 if CHANNELS[c] in f.channels:
                     contrib[:, c] = terms @ coef

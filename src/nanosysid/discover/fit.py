@@ -115,9 +115,13 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
     meas = measured_wrench(flight, vehicle, window, order) if measured is None else measured
     r = meas - _smooth(nominal_wrench(u, vehicle), window, order)
     x, om, od = (torch.from_numpy(np.ascontiguousarray(v)) for v in (flight.y, u, om_dot))
+    slow = effects.slow_squares(om[None], dt)[0]
+    vbat = flight.extra.get("vbat")
+    vbat = None if vbat is None or not np.all(np.isfinite(vbat)) else torch.from_numpy(np.asarray(vbat, dtype=float))
     # every entry's columns in one array, smoothed in one call (the filter works column by
     # column, so each entry's are the same as smoothed alone), then cut into the entries' views
-    every = _smooth(effects.features(COLUMN_ENTRIES, x, om, od, vehicle).numpy(), window, order)[EDGE:-EDGE]
+    every = _smooth(effects.features(COLUMN_ENTRIES, x, om, od, vehicle, s_slow=slow, vbat=vbat).numpy(),
+                    window, order)[EDGE:-EDGE]
     feats = dict(zip(COLUMN_ENTRIES, np.split(every, _COLUMN_ENDS[:-1], axis=-1)))
     sg = effects.signals(x, om, od)
     terms = np.column_stack([torch.as_tensor(fn(sg, vehicle)).numpy() * np.ones(len(flight))
@@ -186,6 +190,13 @@ class Grams:
         g.G, g.h, g.e = G, h, e
         g.B, g.P, g.fold, g.folds, g.fixed_values = self.B, self.P, self.fold, self.folds, dict(self.fixed_values)
         g.Gt, g.ht, g.et = G.sum(1), h.sum(1), e.sum(1)
+        return g
+
+    def subset(self, blocks: np.ndarray, folds: int) -> "Grams":
+        """The normal equations of ``blocks`` alone (renumbered in order), dealt to ``folds`` folds."""
+        g = self._like(self.G[blocks], self.h[blocks], self.e[blocks])
+        g.B, g.folds = len(blocks), folds
+        g.fold = np.arange(len(blocks)) % folds
         return g
 
     def scaled(self, scale: np.ndarray) -> "Grams":

@@ -11,7 +11,8 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from nanosysid import dynamics, effects
+from nanosysid import dynamics
+from nanosysid import effects as library
 from nanosysid.dataio import atomic_file, json_text, read_json_record
 from nanosysid.errors import DataError
 from nanosysid.rollout import advance_inputs, as_tensor, rollout
@@ -24,9 +25,11 @@ class AugmentedStep(nn.Module):
     """RK4 of the full rigid-body dynamics (torque equation kept) with an extra body wrench
     ``Phi(x, Omega, dOmega/dt) theta`` from the named effects.
 
-    The step's input is ``(B, 8)`` (rotor speeds and their rate) or ``(B, 14)`` with a
-    further measured wrench ``[F_B; tau_B]`` added as it is (used to ask what a channel's
-    measured disagreement would do to the rollouts).
+    The step's input is ``(B, 8)`` (rotor speeds and their rate), then, where an effect reads
+    the rotor speeds' history (:attr:`history`), their squares' low-passes ``(B, 4 K)``
+    (:func:`nanosysid.effects.slow_squares`), then optionally a further measured wrench
+    ``[F_B; tau_B]`` added as it is (used to ask what a channel's measured disagreement would do
+    to the rollouts).
     """
 
     def __init__(self, vehicle: Vehicle, effects: Sequence[str] = (), theta: Sequence[float] = (), *,
@@ -35,16 +38,20 @@ class AugmentedStep(nn.Module):
         self.vehicle, self.effects, self.dt, self.substeps = vehicle, tuple(effects), dt, substeps
         self.register_buffer("theta", torch.tensor(list(theta), dtype=torch.float64))
         self._f = functools.partial(dynamics.quad_dynamics, **vehicle.dynamics_kwargs(), angular_dynamics=True)
+        self.history = any("history" in library.entry(n).needs for n in self.effects)
+        self.width = 8 + (4 * len(library.SLOW_TIMES) if self.history else 0)
 
     def _dx(self, x: Tensor, u_ext: Tensor) -> Tensor:
         om, om_dot = u_ext[..., :4], u_ext[..., 4:8]
+        slow = u_ext[..., 8:self.width] if self.history else None
         force = torque = None
         if self.effects:
-            w = effects.features(self.effects, x, om, om_dot, self.vehicle) @ self.theta.to(x.dtype)  # (B, 6)
+            w = library.features(self.effects, x, om, om_dot, self.vehicle, s_slow=slow) @ self.theta.to(x.dtype)
             force, torque = w[..., :3], w[..., 3:]
-        if u_ext.shape[-1] > 8:
-            force = u_ext[..., 8:11] if force is None else force + u_ext[..., 8:11]
-            torque = u_ext[..., 11:14] if torque is None else torque + u_ext[..., 11:14]
+        if u_ext.shape[-1] > self.width:
+            e = u_ext[..., self.width:self.width + 6]
+            force = e[..., :3] if force is None else force + e[..., :3]
+            torque = e[..., 3:] if torque is None else torque + e[..., 3:]
         return self._f(x, om, force_body=force, torque_body=torque)
 
     def forward(self, y: Tensor, u_ext: Tensor) -> Tensor:
@@ -52,7 +59,7 @@ class AugmentedStep(nn.Module):
 
     def coefficients(self) -> dict[str, list[float]]:
         """The coefficients of each effect, by name."""
-        return effects.split_coefficients(self.effects, self.theta.tolist())
+        return library.split_coefficients(self.effects, self.theta.tolist())
 
 
 def rotor_rates(u: Tensor, dt: float) -> Tensor:
@@ -66,11 +73,16 @@ def rotor_rates(u: Tensor, dt: float) -> Tensor:
     return d
 
 
-def augmented_inputs(u: Tensor, delay: float, dt: float) -> Tensor:
+def augmented_inputs(u: Tensor, delay: float, dt: float, history: bool = False) -> Tensor:
     """The augmented step's input along ``u (B, H, 4)``: the rotor speeds read ``delay`` (s)
-    later and their rates, ``(B, H, 8)``."""
+    later and their rates, ``(B, H, 8)``; with ``history`` also their squares' low-passes
+    ``(B, H, 8 + 4 K)``, started at rest at the window's first rotor speeds (a window carries no
+    earlier history)."""
     om = advance_inputs(u, delay / dt)
-    return torch.cat((om, rotor_rates(om, dt)), dim=-1)
+    parts = [om, rotor_rates(om, dt)]
+    if history:
+        parts.append(library.slow_squares(om, dt))
+    return torch.cat(parts, dim=-1)
 
 
 class AugmentedPredictor:
@@ -83,7 +95,7 @@ class AugmentedPredictor:
     @torch.no_grad()
     def __call__(self, y0, u, extra=None) -> np.ndarray:
         y = as_tensor(y0, torch.float64)
-        parts = [augmented_inputs(as_tensor(u, torch.float64), self.delay, self.step.dt)]
+        parts = [augmented_inputs(as_tensor(u, torch.float64), self.delay, self.step.dt, self.step.history)]
         if extra is not None:
             parts.append(as_tensor(extra, torch.float64))
         return rollout(self.step, y, torch.cat(parts, dim=-1)).numpy()
@@ -111,7 +123,7 @@ def load_discovered(path: str | Path, *, name: str = "discovered") -> AugmentedP
     names = list(d["effects"])
     for n in names:
         try:
-            e = effects.entry(n)
+            e = library.entry(n)
         except KeyError as err:
             raise DataError(f"{path}: {err.args[0]}; rerun the discover stage") from None
         if e.kind != "wrench":

@@ -13,10 +13,11 @@ from nanosysid.discover.model import AugmentedPredictor
 from nanosysid.effects import LIBRARY
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["VERDICTS", "STATELESS", "Candidate", "Pick", "Finding", "DiscoveryResult"]
+__all__ = ["VERDICTS", "STATELESS", "UNSTABLE", "Candidate", "Pick", "Finding", "DiscoveryResult"]
 
-VERDICTS = ("named", "ambiguous", "unnamed", "not a function of the state")
+VERDICTS = ("named", "ambiguous", "unnamed", "not a function of the state", "unstable")
 STATELESS = VERDICTS[3]
+UNSTABLE = VERDICTS[4]
 
 
 @dataclass
@@ -81,6 +82,7 @@ class Pick:
     alternatives: list[str]
     competitors: list[str]
     generic_share: float | None = None
+    history: dict[str, Any] | None = None
 
     @property
     def name(self) -> str:
@@ -155,6 +157,14 @@ class DiscoveryResult:
     sindy: dict[str, Any] | None = None
     analysis: dict[str, Any] = field(default_factory=dict)
     limit: protocol.Scores | None = None
+    # entries of the rotor speeds' history the selection chose and the history check dropped
+    dropped: list[dict[str, Any]] = field(default_factory=list)
+    # one row per training flight left out (nanosysid.discover.stability)
+    folds: list[dict[str, Any]] = field(default_factory=list)
+    # the runs of one reference found among the training flights, in words
+    pairs: str = ""
+    # k_M given, whether it was held, and the least-squares refit beside
+    k_m: dict[str, Any] = field(default_factory=dict)
 
     @property
     def found(self) -> list[Finding]:

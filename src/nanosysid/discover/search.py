@@ -22,8 +22,13 @@ class Search:
     """Regression data and block normal equations per delay, built once and shared by every round."""
 
     def __init__(self, flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int, block: float,
-                 folds: int) -> None:
+                 folds: int, hold_k_m: bool = False) -> None:
         self.flights, self.vehicle, self.window, self.order = list(flights), vehicle, window, order
+        # k_M as given (the identify stage's, by instrumental variables where it could): a least
+        # squares refit on closed-loop flights brings back the bias that estimator removes
+        self.hold_k_m = hold_k_m
+        self._parent: Search | None = None
+        self._skip = -1
         self.measured = [measured_wrench(f, vehicle, window, order) for f in self.flights]
         self.noise = noise_floor(self.flights, vehicle, window, order)
         self.weights = 1.0 / np.maximum(self.noise, 1e-12)
@@ -44,8 +49,28 @@ class Search:
             self.offsets[name] = np.arange(k, k + P)
             k += P
 
+    def without(self, flight: int) -> "Search":
+        """The same search without flight ``flight``'s samples (its blocks dropped, the rest
+        dealt to the folds again), sharing this one's regression data and normal equations; the
+        noise floor stays this one's."""
+        sub = object.__new__(Search)
+        sub.__dict__.update(self.__dict__)
+        sub._parent, sub._skip = self, flight
+        sub.flights = [f for i, f in enumerate(self.flights) if i != flight]
+        sub.measured = [m for i, m in enumerate(self.measured) if i != flight]
+        sizes = [len(d.r) for d in self.data(0.0)]
+        mask = np.repeat(np.arange(len(sizes)) != flight, sizes)
+        old = self.blocks[mask]
+        sub._blocks_kept = np.unique(old)
+        sub.blocks = np.searchsorted(sub._blocks_kept, old)
+        sub.folds = min(self.folds, len(sub._blocks_kept) // 2)
+        sub._data, sub._grams, sub._terms = {}, {}, {}
+        return sub
+
     def data(self, delay: float) -> list[FlightData]:
         key = round(float(delay), 6)
+        if self._parent is not None:
+            return [d for i, d in enumerate(self._parent.data(key)) if i != self._skip]
         if key not in self._data:
             self._data[key] = [flight_data(f, self.vehicle, key, window=self.window, order=self.order, measured=m)
                                for f, m in zip(self.flights, self.measured)]
@@ -53,12 +78,23 @@ class Search:
 
     def grams(self, delay: float) -> Grams:
         key = round(float(delay), 6)
+        if self._parent is not None and key not in self._grams:
+            self._grams[key] = self._parent.grams(key).subset(self._blocks_kept, self.folds)
         if key not in self._grams:
             d = self.data(key)
             X = np.concatenate([np.concatenate([fd.features[n] for n in COLUMN_ENTRIES], axis=-1) for fd in d])
             y = np.concatenate([fd.r for fd in d])
-            self._grams[key] = Grams(X, y, self.weights, self.blocks, self.folds)
+            g = Grams(X, y, self.weights, self.blocks, self.folds)
+            self._grams[key] = g.fixed(int(self.offsets[NOMINAL.name][1]), 0.0) if self.hold_k_m else g
         return self._grams[key]
+
+    def free_k_m(self, names: Sequence[str], delay: float) -> float:
+        """The k_M correction a least-squares refit alongside ``names`` would make (N m s²/rad²),
+        reported beside the one held."""
+        d = self.data(delay)
+        X = np.concatenate([np.concatenate([fd.features[n] for n in COLUMN_ENTRIES], axis=-1) for fd in d])
+        g = Grams(X, np.concatenate([fd.r for fd in d]), self.weights, self.blocks, self.folds)
+        return float(g.solve(self.cols(names))[1])
 
     def terms(self, delay: float) -> tuple[generic.TermLibrary, np.ndarray]:
         """The generic terms' library and their values on every sample ``(N, M)``."""

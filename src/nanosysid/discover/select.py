@@ -11,7 +11,7 @@ the folds.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Sequence
 
 import numpy as np
@@ -19,10 +19,11 @@ import numpy as np
 from nanosysid.discover import generic
 from nanosysid.discover.records import Candidate, Pick
 from nanosysid.discover.search import Search, channels_of
+from nanosysid.discover.sources import Pairs, history_check
 from nanosysid.discover.stats import jackknife, pvalue
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, entry
 
-__all__ = ["Selection", "select", "prune"]
+__all__ = ["Selection", "select", "prune", "check_history"]
 
 
 @dataclass
@@ -34,6 +35,7 @@ class Selection:
     picks: list[Pick]
     chosen: list[str]
     delay: float
+    dropped: list[Pick] = field(default_factory=list)
 
 
 def _round(search: Search, chosen: list[str], delay: float, current: np.ndarray, delays: Sequence[float], *,
@@ -105,7 +107,35 @@ def prune(search: Search, selection: Selection, share: float) -> Selection:
             kept.append(pk)
     chosen = [pk.name for pk in kept if pk.name != DELAY.name]
     delay = selection.delay if any(pk.name == DELAY.name for pk in kept) else 0.0
-    return Selection(selection.rounds, kept, chosen, delay)
+    return Selection(selection.rounds, kept, chosen, delay, selection.dropped)
+
+
+def check_history(search: Search, selection: Selection, pairs: Pairs) -> Selection:
+    """Drop a chosen entry of the rotor speeds' history whose fit does not repeat with the
+    reference (:func:`nanosysid.discover.sources.history_check`): the controller's answer to a
+    disturbance of time, not a lag. Each such pick's check is kept on it."""
+    kept, dropped = [], list(selection.dropped)
+    for pk in selection.picks:
+        if pk.name == DELAY.name or "history" not in entry(pk.name).needs:
+            kept.append(pk)
+            continue
+        others = [n for n in selection.chosen if n != pk.name]
+        resid, _ = search.residual(others, selection.delay)
+        theta = _own(search, selection, pk.name)
+        X = np.concatenate([fd.features[pk.name] for fd in search.data(selection.delay)])
+        contribution = (X @ theta) * search.weights
+        g = search.grams(selection.delay)
+        pk.history = history_check(contribution, resid, pairs, search.blocks, g.fold)
+        (kept if pk.history["holds"] else dropped).append(pk)
+    chosen = [pk.name for pk in kept if pk.name != DELAY.name]
+    return Selection(selection.rounds, kept, chosen, selection.delay, dropped)
+
+
+def _own(search: Search, selection: Selection, name: str) -> np.ndarray:
+    """The coefficients of ``name`` in the fit of every chosen entry."""
+    theta = search.grams(selection.delay).solve(search.cols(selection.chosen))
+    at = len(search.cols([])) + sum(entry(n).n_columns for n in selection.chosen[:selection.chosen.index(name)])
+    return theta[at:at + entry(name).n_columns]
 
 
 def _signs_ok(name: str, thetas: np.ndarray, search: Search, chosen: list[str]) -> bool:

@@ -13,10 +13,12 @@ import numpy as np
 
 from nanosysid.discover import generic
 from nanosysid.discover.records import STATELESS, Finding
+from nanosysid.discover.sources import Pairs, source
 from nanosysid.discover.search import Search, channels_of, true_torque_grams
 from nanosysid.discover.select import Selection
 from nanosysid.discover.stats import half_width, jackknife, pvalue
-from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, split_coefficients
+from nanosysid.discover.fit import COLUMN_ENTRIES
+from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, split_coefficients
 from nanosysid.vehicle import Vehicle
 
 INERTIA = "inertia"  # the library entry that corrects the body's inertia
@@ -216,28 +218,67 @@ def unnamed(search: Search, selection: Selection, *, alpha: float, floor: float,
     return out
 
 
-def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, total: float) -> list[Finding]:
+# The least size (noise floors) of a residual called "not a function of the state": the excess is
+# measured against the noise floor's estimate, and a correlated error the estimate misses (the
+# rotor speeds' interpolation, their rates' smoothing) leaves a few tenths of it in every block
+# of a world with no disturbance at all; a disturbance is only said where it is at least as large
+# as the noise itself
+STATELESS_FLOOR = 1.0
+
+
+def _saturated(search: Search, delay: float) -> np.ndarray:
+    """The weighted residual ``(N, 6)`` left by every library entry of the state fitted at once."""
+    names = [n for n in COLUMN_ENTRIES[1:] if not entry(n).needs]
+    return search.residual(names, delay)[0]
+
+
+def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, total: float,
+              pairs: Pairs | None = None, delay: float = 0.0) -> list[Finding]:
     """The channels whose residual ``left`` (weighted: noise floors) stays above the noise after
     the entries and the generic terms of the state: the one-sided Wilcoxon test that the blocks'
     mean squares exceed 1 (the noise's), Bonferroni over the six channels, and a size of at least
-    ``floor`` (the root of the excess mean square). Each is a finding "not a function of the
-    state", with the frequency band holding the middle half of its power."""
+    ``floor`` (the root of the excess mean square), also after every state entry of the library
+    fitted at once and the generic terms on what they leave (else it is an unnamed function of
+    the state, none of whose parts was significant alone). Each is a finding "not a function of the
+    state", with the frequency band holding the middle half of its power and, given runs of one
+    reference (``pairs``), what it is a function of instead (:func:`nanosysid.discover.sources.source`)."""
     B = int(search.blocks.max()) + 1
     counts = np.bincount(search.blocks, minlength=B)
     dt = float(np.median(np.diff(search.flights[0].t)))
     out = []
-    for c in range(6):
-        ms = np.bincount(search.blocks, weights=left[:, c] ** 2, minlength=B) / np.maximum(counts, 1)
+    saturated = None
+
+    def above(x):
+        ms = np.bincount(search.blocks, weights=x ** 2, minlength=B) / np.maximum(counts, 1)
         excess = (ms - 1.0) * counts
         z, p = pvalue(excess)
-        p = min(1.0, 6 * p)
-        size = float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()))
-        if p > alpha or size < floor:
+        return excess, z, min(1.0, 6 * p), float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()))
+
+    least = max(floor, STATELESS_FLOOR)
+    for c in range(6):
+        excess, z, p, size = above(left[:, c])
+        if p > alpha or size < least:
+            continue
+        # before "not a function of the state": every state entry of the library at once (an
+        # inertia, a torque scale, the drags and rotor terms together can leave what none alone
+        # was significant for), with the generic terms on what they leave
+        if saturated is None:
+            saturated = _saturated(search, delay)
+        sat = saturated[:, c] - search.terms(delay)[1] @ generic.sparse_fit(search.terms(delay)[1],
+                                                                            saturated[:, [c]])[0]
+        _, zs, ps, ss = above(sat)
+        if ps > alpha or ss < least:
+            out.append(Finding("unnamed", None, (CHANNELS[c],), {}, {
+                "heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
+                "blocks_improved": int((excess > 0).sum()), "blocks": B, "saturated": True,
+                "saturated_p": ps, "saturated_size": ss, "added": False}))
             continue
         out.append(Finding(STATELESS, None, (CHANNELS[c],), {}, {
             "heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
             "blocks_improved": int((excess > 0).sum()), "blocks": B, "band": _band(left[:, c], search.blocks, dt),
             "rms": float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()) / search.weights[c])}))
+        if pairs is not None:
+            out[-1].evidence["source"] = source(left[:, c], pairs, search.blocks, alpha)
     return out
 
 

@@ -67,6 +67,23 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
               f"{q(idn['k_m_abs_error'], 100, '%')}",
               f"- k_M by the paper's least squares on the training flights: absolute error "
               f"{q(idn['k_m_paper_abs_error'], 100, '%')}", ""]
+    fam = summary.get("families") or {}
+    if fam:
+        L += ["## A function of the state, of the input history, or of time", "",
+              "Worlds of one kind each, every training trajectory flown twice (runs of one reference to compare): a "
+              "slow lag of the rotors' wrench alone (`thrust_lag`, which `slow_actuation` describes), turbulence "
+              "alone (a function of time), and state effects alone (the inertia, a torque scale, the drags, the "
+              "rotor terms: never \"not a function of the state\"). Counts of worlds.", "",
+              "| family | worlds | `slow_actuation` named | offered (named or ambiguous) | chosen, then dropped by the "
+              "history check | with a finding \"not a function of the state\" | … called a function of time | … of "
+              "the input history | yaw inertia within 10 % | yaw inertia claimed identified (of them within 10 %) |",
+              "|---|---|---|---|---|---|---|---|---|---|"]
+        for name, d in fam.items():
+            L.append(f"| {name} | {d['worlds']} | {d['slow_actuation_named']} | {d['slow_actuation_offered']} | "
+                     f"{d['slow_actuation_dropped']} | {d['stateless']} | {d['of_time']} | {d['of_history']} | "
+                     f"{d['inertia_z_within']} | {d['inertia_z_claimed']} ({d['inertia_z_claimed_within']}) |")
+        L += ["", "Where the yaw inertia is not claimed identified, the discovery report says so: the flights tell "
+              "the yaw torques' ratios to J_z, and the inertia correction's interval spans the plausible range.", ""]
     return "\n".join(L)
 
 

@@ -10,12 +10,13 @@ from typing import Any
 from nanosysid.dataio import atomic_file, json_text
 from nanosysid.discover import CHANNELS, LIBRARY, VERDICTS, DiscoveryResult
 from nanosysid.discover.analysis import BANDS, REGIMES
+from nanosysid.effects import SLOW_TIMES
 from nanosysid.metrics import QUANTITIES
 from nanosysid.report.tables import results_table_md
 from nanosysid.viz.figures import mae_horizon_figure
-from nanosysid.viz.discovery import channel_figure, finding_figure
+from nanosysid.viz.discovery import channel_figure, finding_figure, spectrum_figure
 
-__all__ = ["write_report", "result_dict", "gap_closed", "verdicts_markdown"]
+__all__ = ["write_report", "result_dict", "gap_closed", "verdicts_markdown", "headline"]
 
 _QLABEL = {"p": "position", "v": "velocity", "R": "orientation", "w": "angular velocity"}
 
@@ -56,6 +57,10 @@ def result_dict(result: DiscoveryResult) -> dict[str, Any]:
                    **({"state_limit": result.limit.simerr} if result.limit else {}),
                    **({"sindy": result.sindy["simerr"]} if result.sindy else {})},
         **({"sindy_terms": result.sindy["terms"]} if result.sindy else {}),
+        "k_m": result.k_m,
+        "dropped": result.dropped,
+        "folds": result.folds,
+        "pairs": result.pairs,
         "gap_closed": gap_closed(result),
         "gap_closed_state_limit": gap_closed(result, "limit"),
         "analysis": {k: v for k, v in result.analysis.items() if k != "scatter"},
@@ -75,8 +80,17 @@ def _verdict_line(f) -> str:
     stats = (f"held-out gain {100 * ev['heldout_gain']:.2f} % of the nominal residual, size {ev['size']:.2f} noise "
              f"floors, z = {ev['z']:.1f}, "
              f"p = {ev['p']:.2g}, {ev['blocks_improved']} / {ev['blocks']} blocks improved")
+    folds = _folds_text(ev)
     if f.verdict == "named":
-        return f"**`{f.name}` named** on {', '.join(f.channels)} ({stats}; the best of its round on {100 * ev['stability']:.0f} % of the held-out folds)."
+        return (f"**`{f.name}` named** on {', '.join(f.channels)} ({stats}; the best of its round on "
+                f"{100 * ev['stability']:.0f} % of the held-out folds{folds}).")
+    if f.verdict == "unstable":
+        was = f"`{f.entry}`" + (f" (or {', '.join(f'`{a}`' for a in f.alternatives[1:])})" if len(f.alternatives) > 1 else "")
+        return (f"**Unstable** on {', '.join(f.channels)}: {was} would be {ev.get('was', 'named')} on all the training "
+                f"flights ({stats}), but the search reaches it on only {ev['folds']['held']} of the "
+                f"{ev['folds']['of']} folds that leave one flight out (not on "
+                f"{', '.join(ev['folds']['missed'])}): one or a few flights carry it, so it is not named. The "
+                "augmented model still uses it.")
     if f.verdict == "ambiguous":
         alts = ", ".join(f"`{a}`" for a in f.alternatives)
         how = "; ".join(f"`{a}`: {t}" for a, t in ev["separate_by"].items() if t)
@@ -86,14 +100,42 @@ def _verdict_line(f) -> str:
     if f.verdict == "not a function of the state":
         return (f"**Not a function of the state** on {', '.join(f.channels)}: {_fmt(1e3 * ev['rms'])} "
                 f"{_unit(f.channels[0])} RMS ({ev['size']:.2f} noise floors, z = {ev['z']:.1f}, p = {ev['p']:.2g}, "
-                f"{ev['blocks_improved']} / {ev['blocks']} blocks above the noise) that neither a library entry nor "
-                f"the generic terms of the state capture, in the band {ev['band']}: a disturbance of its own (of time, "
-                "a new realisation each flight) that no model of the state can predict.")
+                f"{ev['blocks_improved']} / {ev['blocks']} blocks above the noise{folds}) that neither a library "
+                f"entry nor the generic terms of the state capture, in the band {ev['band']}. "
+                + _source_text(ev.get("source")))
+    if ev.get("saturated"):
+        return (f"**Unnamed** disagreement on {', '.join(f.channels)} ({stats}{folds}): no entry was significant "
+                f"alone, but every state entry of the library fitted at once, with the generic terms, leaves no "
+                f"more than the noise (p = {ev['saturated_p']:.2g}): a function of the state, left out of the "
+                "augmented model.")
     where = (f" It is largest at {ev['regime']}, in the band {ev['band']}." if "regime" in ev else "")
     added = ("the augmented model adds those terms" if ev.get("added", True) else
              "its terms would make the rollouts on the training flights diverge, so the augmented model leaves them out")
-    return (f"**Unnamed** disagreement on {', '.join(f.channels)} ({stats}): no library entry explains it; a sparse fit "
-            f"of generic terms captures it, and {added}.{where}")
+    return (f"**Unnamed** disagreement on {', '.join(f.channels)} ({stats}{folds}): no library entry explains it; a "
+            f"sparse fit of generic terms captures it, and {added}.{where}")
+
+
+def _folds_text(ev: dict[str, Any]) -> str:
+    fo = ev.get("folds")
+    if not fo:
+        return ""
+    return f"; reached on {fo['held']} of the {fo['of']} folds that leave one training flight out"
+
+
+def _source_text(src: dict[str, Any] | None) -> str:
+    """What a residual that no function of the state explains is a function of, with the evidence."""
+    if not src:
+        return "It is a disturbance of its own that no model of the state can predict."
+    if src["source"] == "undecided":
+        return (f"What it is a function of is undecided: {src['why']}; fly one reference twice to tell a function "
+                "of time from one of the input history.")
+    shared = (f"{100 * src['repeat_share']:.0f} % of its power above the noise repeats between runs of one reference "
+              f"(signed-rank z = {src['z']:.1f}, p = {src['p']:.2g} over {src['blocks']} blocks)")
+    if src["source"] == "time":
+        return (f"**A function of time**: {shared}, so most of it is a new realisation every flight, a disturbance "
+                "no model of the measured signals can predict.")
+    return (f"**A function of the input history**: {shared}, so it follows the reference, through the rotor speeds' "
+            "history or a state signal the library lacks, not time.")
 
 
 def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
@@ -109,18 +151,24 @@ def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
             lines.append(f"- ambiguous ({where}): " + " or ".join(f"`{a}`" for a in f["alternatives"]))
         elif f["verdict"] == "unnamed":
             lines.append(f"- unnamed ({where}): " + " + ".join(f["params"]))
+        elif f["verdict"] == "unstable":
+            lines.append(f"- unstable ({where}): `{f['name'] or f['alternatives'][0]}` not reached on every fold")
         else:
-            lines.append(f"- not a function of the state ({where})")
+            src = (f["evidence"].get("source") or {}).get("source")
+            lines.append(f"- not a function of the state ({where})" + (f": a function of {src}" if src and src != "undecided" else ""))
     return "\n".join(lines)
 
 
-def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given to discovery") -> None:
+def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given to discovery",
+                 references: dict[str, Any] | None = None) -> None:
     """``report.md``, ``result.json``, ``verdicts.md`` (for the rerun recordings) and ``figures/`` in
-    ``out``; ``nominal`` says where the nominal model's k_F and k_M come from."""
+    ``out``; ``nominal`` says where the nominal model's k_F and k_M come from; ``references``:
+    label -> scores of other models on the same test flights (the benchmark's physics model)."""
     out = Path(out)
     a = result.analysis
     figs = out / "figures"
     rows = {"nominal (physics_full)": result.before, f"discovered ({result.name})": result.after}
+    rows.update(references or {})
     if result.sindy is not None and result.sindy["scores"] is not None:
         rows["plain SINDy (generic terms, no names)"] = result.sindy["scores"]
     if result.limit is not None:
@@ -177,10 +225,18 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
                 L += [f"| {k} | {v:.4g} |" for k, v in f.params.items()]
             else:
                 desc = LIBRARY[f.entry].description
-                L += [f"*{desc}*", "", "| coefficient | value | 95 % interval |", "|---|---|---|"]
+                flights = f.evidence.get("ci_flights")
+                L += [f"*{desc}*", "", "| coefficient | value | 95 % interval |"
+                      + (" from flights | without each flight |" if flights else ""),
+                      "|---|---|---|" + ("---|---|" if flights else "")]
                 for k, v in f.params.items():
                     lo, hi = f.evidence["ci"][k]
-                    L.append(f"| {k} | {v:.4g} | {lo:.4g} … {hi:.4g} |")
+                    row = f"| {k} | {v:.4g} | {lo:.4g} … {hi:.4g} |"
+                    if flights:
+                        flo, fhi = flights[k]
+                        rlo, rhi = f.evidence["fold_range"][k]
+                        row += f" {flo:.4g} … {fhi:.4g} | {rlo:.4g} … {rhi:.4g} |"
+                    L.append(row)
             L.append("")
         label = f.entry or f"{f.verdict} ({', '.join(f.channels)})"
         if label in fig_of:
@@ -188,11 +244,39 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
                   f"*{label}: its fitted contribution against the residual of {scatter[label]['channel']}, before "
                   "(everything else found removed: along the dashed line when it explains it) and after (what is "
                   "left); grey: ± the channel's noise floor.*", ""]
+    for d in result.dropped:
+        h = d["history"]
+        L += [f"**`{d['entry']}` chosen, then dropped**: its fit does not repeat with the reference. With the partner "
+              f"run's columns as the instrument, the slope of the residual on its contribution is {h['slope']:.2f} "
+              f"(95 % interval {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; 1 for a real lag): what it fitted is the "
+              "controller's answer to a disturbance of the flight's own time, which moves the rotor speeds it is "
+              "made of.", ""]
+    L += [_inertia_z_text(result), ""]
+    if result.k_m.get("held"):
+        L += [f"k_M is held at the identify stage's {result.k_m['given']:.4g} N m s²/rad²; a least-squares refit on "
+              f"these closed-loop flights alongside what was found would give {result.k_m['least_squares']:.4g} (the "
+              "controller answers every yaw disturbance through the rotor speeds it regresses on).", ""]
+    elif result.k_m:
+        L += [f"k_M: the identify stage's {result.k_m['given']:.4g} N m s²/rad²; discovery refits it by least squares "
+              f"alongside what it found, {result.k_m['least_squares']:.4g}, which the augmented model uses. On "
+              "closed-loop flights least squares is biased where the controller answers a yaw disturbance through "
+              "the rotor speeds; holding the identify stage's value instead keeps an effect that bends the yaw "
+              "torque's relation to the rotor speeds (a lag of the rotors' wrench) from being named on simulated "
+              "worlds that have one, because that value was estimated without it.", ""]
+    if result.pairs:
+        L += [f"Runs of one reference among the training flights (positions that agree time for time): {result.pairs}.",
+              ""]
+    if result.folds:
+        L += [f"Every verdict was also sought without each training flight in turn ({len(result.folds)} folds); a "
+              "named verdict must be reached on at least 80 % of them, and each coefficient's interval reaches its "
+              "interval from flights (the folds' jackknife).", ""]
     if result.sindy is not None:
         L += [f"**Plain SINDy** (the same generic terms on the nominal residual, no names) keeps "
               f"{len(result.sindy['terms'])} terms" + ("; its rollouts diverge on the test flights." if result.sindy["diverged"]
                                                       else ".") , ""]
 
+    if a and "spectra" in a:
+        L += _observations(result, references or {}, figs)
     if a:
         L += ["## Where the nominal model and the measurements disagree", "",
               "Measured body wrench: force `m a_IMU` from the accelerometer, torque `J dω/dt + ω × Jω` from "
@@ -269,8 +353,224 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
     with atomic_file(out / "report.md") as tmp:
         tmp.write_text("\n".join(L))
     summary = result_dict(result)
+    summary["references"] = {label: sc.simerr for label, sc in (references or {}).items()}
     with atomic_file(out / "result.json") as tmp:
         tmp.write_text(json_text(summary))
     with atomic_file(out / "verdicts.md") as tmp:
         tmp.write_text(verdicts_markdown(summary["findings"]) + "\n")
 
+
+
+def _touching(result: DiscoveryResult, channels: tuple[str, ...]) -> list:
+    return [f for f in result.findings if set(f.channels) & set(channels)]
+
+
+def _finding_phrase(f) -> str:
+    ev = f.evidence
+    if f.verdict in ("named", "ambiguous", "unstable"):
+        what = f"`{f.entry}`" if f.verdict != "ambiguous" else " or ".join(f"`{a}`" for a in f.alternatives)
+        coef = "; ".join(f"{k} = {v:.3g} ({ev['ci'][k][0]:.3g} … {ev['ci'][k][1]:.3g})" for k, v in f.params.items())
+        held = f", reached on {ev['folds']['held']} of {ev['folds']['of']} flight folds" if "folds" in ev else ""
+        return f"{f.verdict} {what}{': ' + coef if coef else ''}{held}"
+    if f.verdict == "unnamed":
+        return f"unnamed on {', '.join(f.channels)} (generic terms {', '.join(f.params)})"
+    src = (ev.get("source") or {}).get("source", "undecided")
+    return (f"not a function of the state on {', '.join(f.channels)}: {1e3 * ev['rms']:.3g} {_unit(f.channels[0])} RMS "
+            f"in {ev['band']}, a function of {src}" if src != "undecided" else
+            f"not a function of the state on {', '.join(f.channels)}: {1e3 * ev['rms']:.3g} {_unit(f.channels[0])} RMS "
+            f"in {ev['band']}, its source undecided")
+
+
+def _explained(a: dict[str, Any], c: int, part: str) -> float:
+    b, f = a[f"rms_{part}"]["before"][c], a[f"rms_{part}"]["after"][c]
+    return 1.0 - (f / b) ** 2 if b > 0 else 0.0
+
+
+def _candidate_row(result: DiscoveryResult, name: str) -> dict[str, Any] | None:
+    for candidates in reversed(result.rounds):
+        for c in candidates:
+            if c.name == name:
+                return c.row()
+    return None
+
+
+def _observations(result: DiscoveryResult, references: dict[str, Any], figs: Path) -> list[str]:
+    """The section answering the benchmark paper's three observations on its physical model."""
+    a = result.analysis
+    L = ["## The paper's three observations", "",
+         "The paper (section \"Limitations of the physical model\") leaves three: body-frame forces in x and y the "
+         "thrust model does not explain; a yaw torque the k_M model explains only in part; and in roll and pitch a "
+         "low-frequency torque the quadratic model cannot account for, which it attributes, as a hypothesis, to "
+         "slow actuation dynamics. Each is answered here from the training flights' residual (measured minus "
+         "nominal wrench), with its spectrum before and after what was found.", ""]
+
+    def explained_line(chs):
+        return "; ".join(f"{ch}: {_fmt(1e3 * a['rms_train']['before'][CHANNELS.index(ch)])} → "
+                         f"{_fmt(1e3 * a['rms_train']['after'][CHANNELS.index(ch)])} {_unit(ch)} RMS on the training "
+                         f"flights ({100 * _explained(a, CHANNELS.index(ch), 'train'):.0f} % of its power explained; "
+                         f"{100 * _explained(a, CHANNELS.index(ch), 'test'):.0f} % on the test flights)" for ch in chs)
+
+    def findings_lines(chs):
+        fs = _touching(result, chs)
+        return [f"- {_finding_phrase(f)}" for f in fs] or ["- nothing above the noise floor"]
+
+    # 1. x/y forces
+    spectrum_figure(a, ["F_x", "F_y"], figs / "forces_xy.png", "body-frame force residual in x and y")
+    L += ["### 1. The body-frame forces in x and y", "", explained_line(("F_x", "F_y")) + ".", "",
+          "What discovery says of them:", "", *findings_lines(("F_x", "F_y")), "",
+          "![F_x, F_y residual spectra](figures/forces_xy.png)", "",
+          "*Power spectral density of the F_x and F_y residual on the training flights, nominal model (red) and "
+          "with what was found (green).*", ""]
+    # 2. yaw torque
+    c = CHANNELS.index("tau_z")
+    spectrum_figure(a, ["tau_z"], figs / "torque_z.png", "yaw torque residual")
+    L += ["### 2. The yaw torque", "",
+          f"The named effects explain {100 * _explained(a, c, 'train'):.0f} % of the yaw torque residual's power on "
+          f"the training flights and {100 * _explained(a, c, 'test'):.0f} % on the test flights ({explained_line(('tau_z',))}).",
+          "", *findings_lines(("tau_z",)), "",
+          "![tau_z residual spectrum](figures/torque_z.png)", "", "*Power spectral density of the yaw torque residual.*", ""]
+    # 3. low-frequency roll/pitch torque
+    spectrum_figure(a, ["tau_x", "tau_y"], figs / "torque_xy.png", "roll and pitch torque residual")
+    low = [i for i, (lo, hi) in enumerate(a["bands"]["edges"]) if lo == 0.0][0]
+    band_rows = []
+    for ch in ("tau_x", "tau_y"):
+        k = CHANNELS.index(ch)
+        tot_b = sum(a["bands"]["before"][i][k] for i in range(len(a["bands"]["edges"]))) or 1.0
+        b, f = a["bands"]["before"][low][k], a["bands"]["after"][low][k]
+        band_rows.append(f"| {ch} | {1e3 * b ** 0.5:.3g} | {100 * b / tot_b:.0f} % | {1e3 * f ** 0.5:.3g} | "
+                         f"{100 * (1 - f / b) if b > 0 else 0:.0f} % |")
+    L += ["### 3. The low-frequency roll and pitch torque", "",
+          "| channel | below 1 Hz, nominal [mN·m RMS] | its share of the residual power | below 1 Hz, with what was "
+          "found [mN·m RMS] | explained |", "|---|---|---|---|---|", *band_rows, "",
+          "What it is a function of:", "", *findings_lines(("tau_x", "tau_y"))]
+    slow = next((f for f in result.findings if f.entry == "slow_actuation"), None)
+    dropped = next((d for d in result.dropped if d["entry"] == "slow_actuation"), None)
+    row = _candidate_row(result, "slow_actuation")
+    if slow is not None:
+        L.append(f"- **the input history (slow actuation)**: `slow_actuation` is {slow.verdict}.")
+    elif dropped is not None:
+        h = dropped["history"]
+        L.append(f"- **the input history (slow actuation)**: chosen, then dropped: its fit does not repeat with the "
+                 f"reference (instrumental slope {h['slope']:.2f}, 95 % {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; a lag "
+                 "gives 1): the controller's answer to a disturbance, not a lag.")
+    elif row is not None:
+        L.append(f"- **the input history (slow actuation)**: tried in every round, never eligible (last round: "
+                 f"held-out gain {100 * row['heldout_gain']:.3f} %, p = {row['p']:.2g}).")
+    bat = next((f for f in result.findings if f.entry == "battery_thrust"), None)
+    brow = _candidate_row(result, "battery_thrust")
+    if not a["predictable"].get("battery"):
+        L.append("- **the battery**: no battery voltage recorded, not tested.")
+    elif bat is not None:
+        L.append(f"- **the battery**: `battery_thrust` is {bat.verdict}.")
+    elif brow is not None:
+        L.append(f"- **the battery**: `battery_thrust` tried in every round, never eligible (last round: held-out "
+                 f"gain {100 * brow['heldout_gain']:.3f} %, p = {brow['p']:.2g}).")
+    L += ["", "![tau_x, tau_y residual spectra](figures/torque_xy.png)", "",
+          "*Power spectral density of the roll and pitch torque residual.*", ""]
+    pr = a["predictable"]
+    L += ["**How much of what is left any function of the measured signals could predict** (the data's limit): a "
+          "least-squares fit of the residual left by everything found, on the generic terms of the state, the rotor "
+          "speeds' history (low-passes at " + ", ".join(f"{t:g}" for t in SLOW_TIMES) + " s) and the battery "
+          "voltage's, scored held out on the folds of blocks. In closed loop the rotor speeds also carry the "
+          "controller's answer to a disturbance, so this is an upper bound; what it cannot predict no model of "
+          "these signals can.", "",
+          "| channel | left [RMS] | predictable share (held out) | unpredictable [RMS] |", "|---|---|---|---|"]
+    for k, ch in enumerate(CHANNELS):
+        L.append(f"| {ch} | {1e3 * pr['power'][k]:.3g} {_unit(ch)} | {100 * pr['share'][k]:.1f} % | "
+                 f"{1e3 * pr['power'][k] * (1 - pr['share'][k]) ** 0.5:.3g} {_unit(ch)} |")
+    L.append("")
+    decide = [f"`{n}`: {LIBRARY[n].excited_by}" for n in ("slow_actuation", "battery_thrust")]
+    L += ["Flights that would decide what these flights cannot: " + "; ".join(decide) + ".", ""]
+    phys = next((sc for label, sc in references.items() if label.startswith("physics")), None)
+    lim = a.get("limit_simerr")
+    if lim:
+        L += ["**The data's limit in the benchmark**: the augmented model's rollouts on the test flights given, as "
+              "a known extra wrench, every part of the residual it leaves that the fit above predicts from the "
+              "measured signals (fitted on the training flights): what the best model of those signals could reach.",
+              "", "| SimErr on the test flights | " + " | ".join(_QLABEL[k] for k in QUANTITIES) + " |",
+              "|---|" + "---|" * len(QUANTITIES),
+              f"| augmented | " + " | ".join(_fmt(result.after.simerr[k]) for k in QUANTITIES) + " |",
+              f"| augmented + the predictable rest (the data's limit) | " + " | ".join(_fmt(lim[k]) for k in QUANTITIES) + " |"]
+        if phys is not None:
+            L.append("| physics (dω/dt = 0) | " + " | ".join(_fmt(phys.simerr[k]) for k in QUANTITIES) + " |")
+        L.append("")
+    if phys is not None:
+        better = {q: result.after.simerr[q] < phys.simerr[q] for q in ("R", "w")}
+        L += ["### The rotational dynamics", "",
+              f"The augmented model integrates the torque equation; the paper's physics model holds the angular "
+              f"velocity (dω/dt = 0). SimErr on the test flights, orientation and angular velocity: augmented "
+              f"{_fmt(result.after.simerr['R'])} and {_fmt(result.after.simerr['w'])}, physics "
+              f"{_fmt(phys.simerr['R'])} and {_fmt(phys.simerr['w'])}, nominal physics_full "
+              f"{_fmt(result.before.simerr['R'])} and {_fmt(result.before.simerr['w'])}. "
+              + ("The augmented model beats the paper's dω/dt = 0 in both: the rotational dynamics are back."
+                 if all(better.values()) else
+                 "The augmented model does not beat dω/dt = 0 in " + " and ".join(
+                     {"R": "orientation", "w": "angular velocity"}[q] for q, b in better.items() if not b)
+                 + (": even given every part of the torque residual the measured signals predict (the data's limit, "
+                    f"{_fmt(lim['R'])} and {_fmt(lim['w'])}), the rollouts lose to holding the rate: what is left of "
+                    "the torque is unpredictable from the measured signals, and integrated over a horizon it costs "
+                    "more than dω/dt = 0 does." if lim and all(lim[q] >= phys.simerr[q] for q in ("R", "w")) else
+                    (f": the data's limit ({_fmt(lim['R'])} and {_fmt(lim['w'])}) shows how much a model of the "
+                     "measured signals could still gain." if lim else "."))), ""]
+    return L
+
+
+def headline(summary: dict[str, Any], report: str) -> list[str]:
+    """The discovery report's headline (``result.json``'s ``summary``) for the README: the verdicts,
+    the SimErr beside the nominal and reference models and the data's limit, and one line per
+    observation of the paper; ``report`` is the report's path."""
+    fs = summary["findings"]
+    counts = {v: sum(f["verdict"] == v for f in fs) for v in VERDICTS}
+    a = summary.get("analysis") or {}
+    rows = [("nominal (physics_full)", summary["simerr"]["nominal"]),
+            (f"discovered (`{summary['model']}`)", summary["simerr"]["discovered"]),
+            *((label, sc) for label, sc in (summary.get("references") or {}).items())]
+    if a.get("limit_simerr"):
+        rows.append(("discovered + what the measured signals predict (the data's limit)", a["limit_simerr"]))
+    L = [f"Discovery ([report]({report})): " + ", ".join(f"{n} {v}" for v, n in counts.items() if n) + ".", "",
+         "| SimErr on the test flights | " + " | ".join(_QLABEL[k] for k in QUANTITIES) + " |",
+         "|---|" + "---|" * len(QUANTITIES)]
+    L += [f"| {label} | " + " | ".join(_fmt(sc[k]) for k in QUANTITIES) + " |" for label, sc in rows]
+    if a.get("rms_train"):
+        def share(ch, part="test"):
+            return f"{100 * _explained(a, CHANNELS.index(ch), part):.0f} %"
+
+        low = [i for i, (lo, _) in enumerate(a["bands"]["edges"]) if lo == 0.0][0]
+
+        def low_share(ch):
+            c = CHANNELS.index(ch)
+            b, f = a["bands"]["before"][low][c], a["bands"]["after"][low][c]
+            return f"{100 * (1 - f / b) if b > 0 else 0:.0f} %"
+
+        named = [f["name"] for f in fs if f["verdict"] == "named"]
+        L += ["", f"- x/y forces: {share('F_x')} and {share('F_y')} of their residual power explained on the test "
+              f"flights (named: {', '.join(f'`{n}`' for n in named) or 'none'});",
+              f"- yaw torque: {share('tau_z')} of its residual power explained on the test flights;",
+              f"- roll/pitch torque below 1 Hz: {low_share('tau_x')} and {low_share('tau_y')} of its power explained "
+              "on the training flights; `slow_actuation` "
+              + next((f["verdict"] for f in fs if (f["name"] or (f["alternatives"] or [None])[0]) == "slow_actuation"),
+                     "not chosen") + "."]
+    return L
+
+
+def _inertia_z_text(result: DiscoveryResult) -> str:
+    """Whether the yaw inertia is identified, and the yaw coefficients as ratios to it where not."""
+    jz = result.vehicle.inertia[2]
+    f = next((f for f in result.findings if f.entry == "inertia"), None)
+    ratios = [f"k_M / J_z = {result.vehicle.k_m / jz:.4g} s²/rad²"]
+    gyro = next((g for g in result.findings if g.entry == "rotor_gyro"), None)
+    if gyro is not None:
+        ratios.append(f"J_r / J_z = {list(gyro.params.values())[0] / jz:.4g}")
+    if f is None:
+        return (f"**The yaw inertia J_z is not identified**: no inertia correction is named, so the model holds the "
+                f"nominal {jz:.4g} kg m², and the yaw torques are known as ratios to it ({'; '.join(ratios)}).")
+    k = LIBRARY["inertia"].params[2]
+    lo, hi = f.evidence["ci"][k]
+    j0 = jz - f.params[k]
+    if "inertia_z_range" in f.evidence:
+        a, b = f.evidence["inertia_z_range"]
+        outside = "" if a <= jz <= b else f" The model's {jz:.4g} kg m² lies outside that range."
+        return (f"**The yaw inertia J_z is not identified**: the flights tell the yaw torques' ratios to J_z, so its "
+                f"interval spans the plausible range {a:.4g} … {b:.4g} kg m²; the model's yaw coefficients are "
+                f"ratios to its {jz:.4g} kg m² ({'; '.join(ratios)}).{outside}")
+    return f"The yaw inertia J_z is identified at {jz:.4g} kg m² (95 % interval {j0 + lo:.4g} … {j0 + hi:.4g})."

@@ -119,8 +119,15 @@ def rig_section(paper_md: Path, figure: Path, figure_copy: str) -> str:
     for head in ("## The results beside the paper's table", "## Identification beside the paper's",
                  "## The motor alignment beside the authors'"):
         parts += [head.replace("## ", "#### ", 1), "", _part(text, head), ""]
+    found = []
+    result = Path(paper_md).parent / "discovery" / "result.json"
+    if result.is_file():
+        from nanosysid.report.discovery import headline  # the discovery package, only for this section
+
+        found = ["#### Discovery on the real flights", "",
+                 *headline(json.loads(result.read_text()), (result.parent / "report.md").as_posix()), ""]
     return "\n".join([RIG_BEGIN, stamp(paper_md, figure), "", *parts,
-                      f"![MAE against the prediction horizon on the real test flights]({figure_copy})", "",
+                      f"![MAE against the prediction horizon on the real test flights]({figure_copy})", "", *found,
                       f"From `{paper_md.as_posix()}`; the rig pipeline's full report is `{paper_md.parent.as_posix()}/"
                       "benchmark.md`.", RIG_END])
 

@@ -80,6 +80,9 @@ class Oracle:
     def __call__(self, y0, u, t0=None, flight: str | None = None) -> np.ndarray:
         y = as_tensor(y0, torch.float64)
         om = advance_inputs(as_tensor(u, torch.float64), self.rotor_delay / self.dt)  # true speeds (B, H, 4)
+        if self.world.slow_share:
+            # the speeds whose squares the rotors' wrench follows (the lag starts at the window)
+            om = torch.from_numpy(np.sqrt(self.world.effective_squares(om.numpy() ** 2, self.dt)))
         H = om.shape[1]
         t = None if t0 is None else as_tensor(t0, torch.float64).reshape(-1)
         if (self.world.timed or self.extra_wrench is not None) and t is None:

@@ -362,7 +362,9 @@ def flights_from_record(raw: RawRecord, *, vehicle: Vehicle, cfg: SimConfig, noi
         y_true = raw.x[i, idx]
         omega_true = raw.omega[i, idx]
         # recorded rotor speeds lag the true ones: sample the true history d seconds earlier
-        u_rec = interp_columns(raw.t, raw.omega[i], raw.t[idx] - raw.worlds[i].telemetry_delay)
+        # the rotors turn at what makes their (possibly lagging) wrench the simulated one
+        omega = raw.worlds[i].speeds_for(raw.omega[i], float(raw.t[1] - raw.t[0]))
+        u_rec = interp_columns(raw.t, omega, raw.t[idx] - raw.worlds[i].telemetry_delay)
         acc_true = raw.wrench[i, idx, :3] / vehicle.mass  # specific force in the body frame
         y, u, acc = y_true.copy(), u_rec, acc_true.copy()
         if noise:

@@ -63,6 +63,11 @@ TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass
 # by the physics and Phys+Res rows of the paper (reports/sim/stats.md).
 UNSTEADY_THRUST = 0.045  # std of each rotor's relative thrust and drag-torque fluctuation
 UNSTEADY_THRUST_BAND = 3.0  # Hz
+# The paper's hypothesis for the same torque, as a function of the rotor speeds' history: a share
+# of each rotor's thrust and drag torque follows k Omega^2 through a slow first-order lag
+SLOW_ACTUATION = 0.25  # share of the rotor's wrench that lags, at strength 1 (at most MAX_SLOW_SHARE)
+SLOW_ACTUATION_TIME = 0.3  # s, the lag's time constant
+MAX_SLOW_SHARE = 0.8
 
 # w @ _GYRO = (-w_y, w_x, 0)
 _GYRO = torch.tensor([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
@@ -81,6 +86,13 @@ def _unit_band_noise(key: Sequence[int], t_end: float, channels: int, band: floa
     impulse = lfilter(b, a, np.r_[1.0, np.zeros(20 * int(np.ceil(REALISATION_RATE / band)))])
     white = np.random.default_rng(list(key)).standard_normal((n, channels))
     return lfilter(b, a, white, axis=0) / np.sqrt(np.sum(impulse**2))
+
+
+def _lowpass(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
+    """First-order low-pass of time constant ``tau`` (s) along axis -2 of ``x (..., T, k)``
+    sampled every ``dt`` s, at rest at the first sample."""
+    a = 1.0 - np.exp(-dt / tau)
+    return lfilter([a], [1.0, a - 1.0], x, axis=-2, zi=(1.0 - a) * x[..., :1, :])[0]
 
 
 def _mm(v) -> str:
@@ -289,6 +301,12 @@ RECORDS: tuple[WorldEffect, ...] = (
         "the recorded rotor speeds' history", default=1.0, described_by=frozenset({"input_delay"}),
         truth=("input_delay", lambda s, vehicle: [s * TELEMETRY_DELAY])),
     WorldEffect(
+        "thrust_lag", "part of each rotor's thrust and drag torque follows its speed through a slow lag",
+        f"a share {SLOW_ACTUATION:g} of each rotor's thrust and drag torque follows k Omega^2 through a first-order "
+        f"lag of {SLOW_ACTUATION_TIME:g} s (the recorded speeds are the rotors'; the wrench lags them)",
+        "the rotor speeds' history", default=0.0, described_by=frozenset({"slow_actuation"}),
+        truth=("slow_actuation", lambda s, vehicle: [0.0, min(s * SLOW_ACTUATION, MAX_SLOW_SHARE), 0.0])),
+    WorldEffect(
         "inertia_offset", "the body's inertia above the nominal",
         f"the body's inertia is ({', '.join(f'{d * 100:+g}' for d in INERTIA_OFFSET)}) % off the nominal diagonal",
         "state, rotor speeds (the body's response)", default=0.0, described_by=frozenset({"inertia", "arm"}),
@@ -382,6 +400,32 @@ class World:
     def telemetry_delay(self) -> float:
         """Delay (s) of the recorded rotor speeds behind the true ones."""
         return self.s("telemetry_delay") * TELEMETRY_DELAY
+
+    @property
+    def slow_share(self) -> float:
+        """Share of each rotor's wrench that follows its speed through the slow lag."""
+        return min(self.s("thrust_lag") * SLOW_ACTUATION, MAX_SLOW_SHARE)
+
+    def effective_squares(self, s: np.ndarray, dt: float) -> np.ndarray:
+        """The squares ``(..., T, 4)`` a rotor's wrench follows, from its speeds' squares ``s``
+        sampled every ``dt`` s (the slow lag started at rest at the first sample):
+        ``(1 - g) s + g LP(s)``."""
+        g = self.slow_share
+        if not g:
+            return s
+        return (1.0 - g) * s + g * _lowpass(s, dt, SLOW_ACTUATION_TIME)
+
+    def speeds_for(self, omega: np.ndarray, dt: float) -> np.ndarray:
+        """The rotor speeds ``(T, 4)`` whose :meth:`effective_squares` are ``omega (T, 4)``
+        squared (the inverse of the slow lag: what a rotor turns at while its wrench follows
+        ``omega``)."""
+        g = self.slow_share
+        if not g:
+            return omega
+        s_true = omega ** 2
+        # LP_T(s) of the speeds sought is LP_(T (1 - g))(s_true)
+        lag = _lowpass(s_true, dt, SLOW_ACTUATION_TIME * (1.0 - g))
+        return np.sqrt(np.clip((s_true - g * lag) / (1.0 - g), 0.0, None))
 
     def inertia(self, vehicle: Vehicle) -> tuple[float, float, float]:
         """The body's true inertia diagonal (kg m^2)."""

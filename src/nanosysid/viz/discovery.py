@@ -15,7 +15,7 @@ import numpy as np  # noqa: E402
 from nanosysid.dataio import atomic_file  # noqa: E402
 from nanosysid.effects import CHANNELS  # noqa: E402
 
-__all__ = ["channel_figure", "finding_figure"]
+__all__ = ["channel_figure", "finding_figure", "spectrum_figure"]
 
 
 def _save(fig, path: Path) -> None:
@@ -62,5 +62,26 @@ def finding_figure(label: str, d: dict[str, Any], path: Path) -> None:
     ax.set_title(f"{label} ({d['verdict']})", fontsize=10)
     ax.grid(True, alpha=0.3)
     ax.legend(fontsize=7, markerscale=4)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def spectrum_figure(a: dict[str, Any], channels: list[str], path: Path, title: str) -> None:
+    """Power spectral density of the residual of ``channels`` on the training flights, nominal
+    model and with what discovery found, one panel each."""
+    sp = a["spectra"]
+    f = np.asarray(sp["freq"])
+    fig, axes = plt.subplots(1, len(channels), figsize=(4.4 * len(channels), 3.6), squeeze=False)
+    for ax, ch in zip(axes[0], channels):
+        c = CHANNELS.index(ch)
+        unit = "mN" if ch.startswith("F") else "mN·m"
+        ax.semilogy(f[1:], 1e6 * np.asarray(sp["before"][c])[1:], color="C3", label="nominal model")
+        ax.semilogy(f[1:], 1e6 * np.asarray(sp["after"][c])[1:], color="C2", label="with what was found")
+        ax.set_xlabel("frequency [Hz]")
+        ax.set_ylabel(f"PSD [{unit}²/Hz]")
+        ax.set_title(ch, fontsize=10)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     _save(fig, path)

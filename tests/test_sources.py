@@ -1,0 +1,80 @@
+"""Telling a function of the input history from one of time, on signals made by hand: two runs of
+one reference share what the reference makes and nothing of their own disturbances."""
+
+import numpy as np
+
+from nanosysid.dataio import Flight
+from nanosysid.discover.sources import history_check, reference_pairs, source
+
+
+def _flights(rng, n=2000):
+    t = np.arange(n) * 0.01
+    path = np.column_stack([np.sin(0.5 * t), np.cos(0.3 * t), 1 + 0.2 * np.sin(t)])
+    other = np.column_stack([np.sin(0.9 * t + 1), np.cos(0.2 * t), 1 + 0.3 * np.cos(t)])
+    out = []
+    for name, p in (("square_20250101_run1", path), ("square_20250101_run2", path),
+                    ("random_20250101_run1", other), ("square_20250101_run3", other)):
+        y = np.zeros((n, 13))
+        y[:, 0:3] = p + rng.normal(0, 0.02, (n, 3))
+        y[:, 9] = 1.0
+        out.append(Flight(name=name, t=t.copy(), u=np.full((n, 4), 2000.0), y=y, extra={}))
+    return out
+
+
+def _slow(rng, n, scale=1.0):
+    """A slow random signal: white noise through a 1 s moving average."""
+    return scale * np.convolve(rng.normal(size=n + 99), np.ones(100) / 10, mode="valid")
+
+
+def test_runs_of_one_reference_are_paired_by_their_positions_not_their_names():
+    rng = np.random.default_rng(0)
+    flights = _flights(rng)
+    pairs = reference_pairs(flights, [f.t for f in flights])
+    # run 3 of the square flew another path: no partner; the random flight has no other run
+    assert pairs.partners == [1, 0, -1, -1]
+    n = len(flights[0])
+    assert np.array_equal(pairs.index[:n], np.arange(n) + n) and np.all(pairs.index[2 * n:] == -1)
+
+
+def test_a_residual_that_repeats_with_the_reference_is_of_the_history_one_that_does_not_is_of_time():
+    rng = np.random.default_rng(1)
+    flights = _flights(rng)
+    pairs = reference_pairs(flights, [f.t for f in flights])
+    n = len(flights[0])
+    blocks = np.arange(4 * n) // 200
+    common = _slow(rng, n, 3.0)
+    noise = rng.normal(size=4 * n)  # the noise floor: residuals are in its units
+    repeating = noise + np.concatenate([common, common, _slow(rng, n, 3.0), _slow(rng, n, 3.0)])
+    of_time = noise + np.concatenate([_slow(rng, n, 3.0) for _ in range(4)])
+    assert source(repeating, pairs, blocks, 0.01)["source"] == "the input history"
+    got = source(of_time, pairs, blocks, 0.01)
+    assert got["source"] == "time" and abs(got["repeat_share"]) < 0.3
+    lone = reference_pairs(flights[2:], [f.t for f in flights[2:]])
+    assert source(of_time[2 * n:], lone, blocks[:2 * n], 0.01)["source"] == "undecided"
+
+
+def test_a_fit_to_the_controllers_answer_to_a_disturbance_has_an_instrumental_slope_near_zero():
+    # closed loop: the rotor-speed column is the reference's demand plus the controller's answer to
+    # the run's own disturbance d; least squares of d on the column finds a slope, the partner
+    # run's column (same demand, another disturbance) finds none
+    rng = np.random.default_rng(2)
+    flights = _flights(rng)
+    pairs = reference_pairs(flights, [f.t for f in flights])
+    n = len(flights[0])
+    blocks = np.arange(4 * n) // 200
+    folds = np.arange(blocks.max() + 1) % 10
+    demand = _slow(rng, n, 2.0)
+    d = np.concatenate([_slow(rng, n, 2.0) for _ in range(4)])
+    column = np.concatenate([demand, demand, _slow(rng, n, 2.0), _slow(rng, n, 2.0)]) + d
+    contribution = np.zeros((4 * n, 6))
+    contribution[:, 3] = column
+    disturbance = np.zeros((4 * n, 6))
+    disturbance[:, 3] = d + rng.normal(size=4 * n)
+    ols = float((column * disturbance[:, 3]).sum() / (column ** 2).sum())
+    got = history_check(contribution, disturbance, pairs, blocks, folds)
+    assert ols > 0.3 and got["ci"][0] < 0 < got["ci"][1] and not got["holds"]
+    # a real lag: the residual is the column itself (plus noise): slope 1
+    lag = np.zeros((4 * n, 6))
+    lag[:, 3] = column + rng.normal(size=4 * n)
+    got = history_check(contribution, lag, pairs, blocks, folds)
+    assert got["holds"] and got["ci"][0] < 1 < got["ci"][1]
