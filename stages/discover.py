@@ -41,17 +41,13 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
                           delays=tuple(delays), window=int(dc.savgol_window), order=int(dc.savgol_order), horizon=H,
                           oracle=oracle, limit=limit, inertia_z_range=tuple(cfg.identify.inertia_z_range),
                           batch_size=int(cfg.eval.batch_size), flights_out=bool(dc.flights_out), progress=True)
-    references = {}
-    if dc.get("reference") is not None:
-        references["physics (dω/dt = 0, the paper's)"] = protocol.evaluate(
-            build_from_options(plain(dc.reference)), bench.test, horizon=H, batch_size=int(cfg.eval.batch_size))
     step = result.model.step
     effects = {name: {"params": list(entry(name).params), "coefficients": coef}
                for name, coef in step.coefficients().items()}
     save_discovered(Path(dc.out_dir) / "model.json", result.vehicle, effects, result.model.delay,
                     dt=step.dt, substeps=step.substeps)
     with atomic_dir(Path(dc.report_dir), inputs=[cfg.paths.split]) as tmp:
-        write_report(result, tmp, nominal=_nominal_source(dc.identified), references=references)
+        write_report(result, tmp, nominal=_nominal_source(dc.identified))
     log.info("discover: %s; SimErr p %.3g -> %.3g, v %.3g -> %.3g, R %.3g -> %.3g, w %.3g -> %.3g", result.name,
              *(x for q in "pvRw" for x in (result.before.simerr[q], result.after.simerr[q])))
     return result

@@ -123,7 +123,6 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("discover.delay_step", POSITIVE), ("discover.delay_max", NONNEG),
     ("discover.oracle.dt", POSITIVE), ("discover.oracle.substeps", COUNT), ("discover.oracle.effects.*", NONNEG),
     ("discover.oracle.rotor_delay", NONNEG_OR_NULL), ("discover.oracle.compile", FLAG), ("discover.oracle.*", TEXT),
-    ("discover.reference.*", FREE),  # a model's block (the physics model scored beside)
     ("discover.oracle", FREE),  # a model's block, or null where no oracle applies (real data)
     # the campaign and the launcher
     ("campaign.worlds", COUNT), ("campaign.chunk", COUNT), ("campaign.duration", POSITIVE),

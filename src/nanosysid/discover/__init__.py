@@ -89,6 +89,8 @@ from nanosysid.discover.verdicts import coefficients, named, stateless, unnamed
 from nanosysid.effects import CHANNELS, LIBRARY
 from nanosysid.errors import ConfigError, DataError
 from nanosysid.identify import identify
+from nanosysid.models.physics import PhysicsStep
+from nanosysid.rollout import StepPredictor
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["run", "Finding", "DiscoveryResult", "Candidate", "Pick", "VERDICTS", "STATELESS", "UNSTABLE", "CHANNELS",
@@ -194,6 +196,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
 
     result = DiscoveryResult(findings, score(nominal), score(model), model, nominal, augmented_vehicle,
                              selection.rounds, alpha, floor, search.noise, score(oracle) if oracle else None)
+    # the paper's physics model on the same nominal vehicle: the angular velocity held (dω/dt = 0)
+    result.held_rate = score(StepPredictor(PhysicsStep(v, dt=nominal.step.dt, angular_dynamics=False), name="physics"))
     result.dropped = [{"entry": pk.name, "history": pk.history} for pk in selection.dropped]
     result.folds = folds_out
     result.pairs = pairs.described([f.name for f in search.flights])

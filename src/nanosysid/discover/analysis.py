@@ -163,14 +163,17 @@ def _limit_columns(lib, d) -> list[np.ndarray]:
             for c in range(6)]
 
 
-def _with_extra(model, flights, extra, horizon, batch_size) -> dict[str, float]:
-    """SimErr of ``model`` on ``flights`` given a known extra body wrench ``(T, 6)`` per flight."""
+def _with_extra(model, flights, extra, horizon, batch_size) -> dict[str, float] | None:
+    """SimErr of ``model`` on ``flights`` given a known extra body wrench ``(T, 6)`` per flight
+    (None where the rollouts do not stay finite)."""
     sums = {k: [] for k in ("p", "v", "R", "w")}
     for f, r in zip(flights, extra):
         y0, u, y = protocol.windows(f, horizon)
         ex = np.lib.stride_tricks.sliding_window_view(r, horizon, axis=0)[:len(y0)].transpose(0, 2, 1)
         pred = np.concatenate([model(y0[s:s + batch_size], u[s:s + batch_size], ex[s:s + batch_size])
                                for s in range(0, len(y0), batch_size)])
+        if not np.all(np.isfinite(pred)):
+            return None  # the fitted rest drives the rollouts away: no limit to report
         for k, v in protocol.score(y, pred).simerr.items():
             sums[k].append(v)
     # the mean of the flights' curves, as protocol.evaluate averages the test flights

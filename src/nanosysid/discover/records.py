@@ -165,6 +165,8 @@ class DiscoveryResult:
     pairs: str = ""
     # k_M given, whether it was held, and the least-squares refit beside
     k_m: dict[str, Any] = field(default_factory=dict)
+    # the paper's physics model (the nominal vehicle, dω/dt = 0) on the test flights
+    held_rate: protocol.Scores | None = None
 
     @property
     def found(self) -> list[Finding]:

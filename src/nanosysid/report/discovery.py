@@ -168,7 +168,10 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
     a = result.analysis
     figs = out / "figures"
     rows = {"nominal (physics_full)": result.before, f"discovered ({result.name})": result.after}
-    rows.update(references or {})
+    references = dict(references or {})
+    if result.held_rate is not None:
+        references.setdefault("physics (the nominal vehicle, dω/dt = 0: the paper's)", result.held_rate)
+    rows.update(references)
     if result.sindy is not None and result.sindy["scores"] is not None:
         rows["plain SINDy (generic terms, no names)"] = result.sindy["scores"]
     if result.limit is not None:
@@ -276,7 +279,7 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
                                                       else ".") , ""]
 
     if a and "spectra" in a:
-        L += _observations(result, references or {}, figs)
+        L += _observations(result, references, figs)
     if a:
         L += ["## Where the nominal model and the measurements disagree", "",
               "Measured body wrench: force `m a_IMU` from the accelerometer, torque `J dω/dt + ω × Jω` from "
