@@ -36,12 +36,16 @@ def test_runs_of_one_reference_are_paired_by_their_positions_not_their_names():
     assert np.array_equal(pairs.index[:n], np.arange(n) + n) and np.all(pairs.index[2 * n:] == -1)
 
 
-def test_a_residual_that_repeats_with_the_reference_is_of_the_history_one_that_does_not_is_of_time():
-    rng = np.random.default_rng(1)
+def _paired(seed):
+    """Four flights (two runs of one reference among them), their pairs, samples a flight, blocks."""
+    rng = np.random.default_rng(seed)
     flights = _flights(rng)
-    pairs = reference_pairs(flights, [f.t for f in flights])
     n = len(flights[0])
-    blocks = np.arange(4 * n) // 200
+    return rng, flights, reference_pairs(flights, [f.t for f in flights]), n, np.arange(4 * n) // 200
+
+
+def test_a_residual_that_repeats_with_the_reference_is_of_the_history_one_that_does_not_is_of_time():
+    rng, flights, pairs, n, blocks = _paired(1)
     common = _slow(rng, n, 3.0)
     noise = rng.normal(size=4 * n)  # the noise floor: residuals are in its units
     repeating = noise + np.concatenate([common, common, _slow(rng, n, 3.0), _slow(rng, n, 3.0)])
@@ -57,11 +61,7 @@ def test_a_fit_to_the_controllers_answer_to_a_disturbance_has_an_instrumental_sl
     # closed loop: the rotor-speed column is the reference's demand plus the controller's answer to
     # the run's own disturbance d; least squares of d on the column finds a slope, the partner
     # run's column (same demand, another disturbance) finds none
-    rng = np.random.default_rng(2)
-    flights = _flights(rng)
-    pairs = reference_pairs(flights, [f.t for f in flights])
-    n = len(flights[0])
-    blocks = np.arange(4 * n) // 200
+    rng, flights, pairs, n, blocks = _paired(2)
     folds = np.arange(blocks.max() + 1) % 10
     demand = _slow(rng, n, 2.0)
     d = np.concatenate([_slow(rng, n, 2.0) for _ in range(4)])

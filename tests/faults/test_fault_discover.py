@@ -39,7 +39,8 @@ def test_hover_only_flights_cannot_be_judged(hover):
         discover.run(hover, hover[:1], analysis=False)
 
 
-@pytest.mark.parametrize("alpha,blocks", [(0.01, 11), (0.001, 14)])
+# the library's 17 entries: 2^11 = 2048 >= 17 / 0.01, and 2^15 >= 17 / 0.001 > 2^14 = 16384
+@pytest.mark.parametrize("alpha,blocks", [(0.01, 11), (0.001, 15)])
 def test_too_few_blocks_for_any_test_cannot_be_judged(short, alpha, blocks):
     with pytest.raises(DataError, match=rf"discover cannot judge: .* no finding is possible below {blocks} blocks"):
         discover.run(short, short[:1], alpha=alpha, analysis=False)
