@@ -48,7 +48,8 @@ class DvcRepo:
 
 
 # the campaign stage at its smallest: one world
-TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=10.0"]
+TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=10.0", "campaign.families.thrust_lag=0",
+                 "campaign.families.turbulence=0", "campaign.families.state=0"]
 SMALL = [a for o in TINY_SIM + TINY_CAMPAIGN for a in ("-S", o)]
 
 

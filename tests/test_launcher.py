@@ -123,6 +123,7 @@ def test_campaign_gives_the_same_bytes_with_one_or_two_workers(tmp_path, monkeyp
     for workers in (1, 2):
         # one worker: both worlds in one batch; two workers: a batch each (the tasks are even)
         argv = ["--params", str(params), "campaign.worlds=2", "campaign.chunk=2", "campaign.duration=10.0",
+                "campaign.families.thrust_lag=0", "campaign.families.turbulence=0", "campaign.families.state=0",
                 "sim.flight.trajectories.yawsweep.duration=6.0", "launcher=local", f"launcher.workers={workers}",
                 f"campaign.out_dir={tmp_path / str(workers)}"]
         assert run_stage(campaign.main, description="", argv=argv) == 0
