@@ -60,6 +60,9 @@ def physics_cost(predict) -> dict[str, Any]:
 
 
 def augmented_cost(predict) -> dict[str, Any]:
-    """The discovered model: as :func:`physics_cost`, with its effects in the C step."""
+    """The discovered model: as :func:`physics_cost`, with its effects in the C step (no count
+    where an effect reads the rotor speeds' history, which the C step is not given)."""
+    if predict.step.history:
+        return {"params": None, "flops": None, "flops_method": "none: an effect reads the rotor speeds' history"}
     return {"params": None, "flops": augmented_step(predict, "discovered").c.flops,
             "flops_method": "exact count of the generated C"}
