@@ -21,7 +21,7 @@ from nanosysid.discover.records import Candidate, Pick
 from nanosysid.discover.search import Search, channels_of
 from nanosysid.discover.sources import Pairs, history_check
 from nanosysid.discover.stats import jackknife, pvalue
-from nanosysid.effects import CHANNELS, DELAY, LIBRARY, entry
+from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, split_coefficients
 
 __all__ = ["Selection", "select", "prune", "check_history"]
 
@@ -121,7 +121,8 @@ def check_history(search: Search, selection: Selection, pairs: Pairs) -> Selecti
             continue
         others = [n for n in selection.chosen if n != pk.name]
         resid, _ = search.residual(others, selection.delay)
-        theta = _own(search, selection, pk.name)
+        fitted = search.grams(selection.delay).solve(search.cols(selection.chosen))
+        theta = np.array(split_coefficients([NOMINAL.name, *selection.chosen], fitted)[pk.name])
         X = np.concatenate([fd.features[pk.name] for fd in search.data(selection.delay)])
         contribution = (X @ theta) * search.weights
         g = search.grams(selection.delay)
@@ -129,13 +130,6 @@ def check_history(search: Search, selection: Selection, pairs: Pairs) -> Selecti
         (kept if pk.history["holds"] else dropped).append(pk)
     chosen = [pk.name for pk in kept if pk.name != DELAY.name]
     return Selection(selection.rounds, kept, chosen, selection.delay, dropped)
-
-
-def _own(search: Search, selection: Selection, name: str) -> np.ndarray:
-    """The coefficients of ``name`` in the fit of every chosen entry."""
-    theta = search.grams(selection.delay).solve(search.cols(selection.chosen))
-    at = len(search.cols([])) + sum(entry(n).n_columns for n in selection.chosen[:selection.chosen.index(name)])
-    return theta[at:at + entry(name).n_columns]
 
 
 def _signs_ok(name: str, thetas: np.ndarray, search: Search, chosen: list[str]) -> bool:
