@@ -44,13 +44,13 @@ def _paired(seed):
     return rng, flights, reference_pairs(flights, [f.t for f in flights]), n, np.arange(4 * n) // 200
 
 
-def test_a_residual_that_repeats_with_the_reference_is_of_the_history_one_that_does_not_is_of_time():
+def test_a_residual_that_repeats_with_the_reference_is_of_the_reference_one_that_does_not_is_of_time():
     rng, flights, pairs, n, blocks = _paired(1)
     common = _slow(rng, n, 3.0)
     noise = rng.normal(size=4 * n)  # the noise floor: residuals are in its units
     repeating = noise + np.concatenate([common, common, _slow(rng, n, 3.0), _slow(rng, n, 3.0)])
     of_time = noise + np.concatenate([_slow(rng, n, 3.0) for _ in range(4)])
-    assert source(repeating, pairs, blocks, 0.01)["source"] == "the input history"
+    assert source(repeating, pairs, blocks, 0.01)["source"] == "the reference"
     got = source(of_time, pairs, blocks, 0.01)
     assert got["source"] == "time" and abs(got["repeat_share"]) < 0.3
     lone = reference_pairs(flights[2:], [f.t for f in flights[2:]])
@@ -78,3 +78,20 @@ def test_a_fit_to_the_controllers_answer_to_a_disturbance_has_an_instrumental_sl
     lag[:, 3] = column + rng.normal(size=4 * n)
     got = history_check(contribution, lag, pairs, blocks, folds)
     assert got["holds"] and got["ci"][0] < 1 < got["ci"][1]
+
+
+def test_a_fit_that_least_squares_attenuated_fails_the_check_though_it_repeats():
+    # what repeats with the reference is twice what the entry's least-squares fit says (its
+    # columns also carry the controller's answer, anti-correlated with a biased correction beside
+    # it): the instrumental slope is 2, the two estimates disagree, the entry is not named
+    rng, flights, pairs, n, blocks = _paired(3)
+    folds = np.arange(blocks.max() + 1) % 10
+    demand = _slow(rng, n, 2.0)
+    reference = np.concatenate([demand, demand, _slow(rng, n, 2.0), _slow(rng, n, 2.0)])
+    column = reference + np.concatenate([_slow(rng, n, 2.0) for _ in range(4)])
+    contribution = np.zeros((4 * n, 6))
+    contribution[:, 3] = column
+    residual = np.zeros((4 * n, 6))
+    residual[:, 3] = 2.0 * reference + rng.normal(size=4 * n)
+    got = history_check(contribution, residual, pairs, blocks, folds)
+    assert got["ci"][0] < 2.0 < got["ci"][1] and not got["holds"]

@@ -47,6 +47,15 @@ significantly more than nothing is an **unnamed** finding, and its sparse terms 
 augmented model. Anything that does not pass these tests is below the noise floor and is not a
 finding.
 
+**History and time.** An entry of the rotor speeds' history is kept only if its fit repeats
+with the reference, its instrumental estimate (the partner run's columns) agreeing with least
+squares, and if, added to every state entry of the library at once, it still passes the
+selection's test (:func:`~nanosysid.discover.select.check_history`). A residual that stays above
+the noise after every state entry and the generic terms is **not a function of the state** when
+it does not repeat between runs of one reference (a function of time); when it does repeat, it
+follows the reference through the state or the input history, which no test here tells apart,
+and it is **unnamed** (:func:`~nanosysid.discover.verdicts.stateless`).
+
 **The numbers of a finding.** Its coefficients are fitted on every block, in the true body's
 units: where the inertia correction is chosen, every other torque column is scaled by
 ``J / (J + dJ)`` and refitted until ``dJ`` settles, so k_M, a rotor inertia or a damping is the
@@ -172,7 +181,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
 
     pairs = reference_pairs(search.flights, [d.t for d in search.data(0.0)])
     selection = prune(search, select(search, delays, alpha=alpha, floor=floor, total=total), share)
-    selection = check_history(search, selection, pairs)
+    selection = check_history(search, selection, pairs, alpha=alpha, floor=floor)
     fit = coefficients(search, selection, v, inertia_z_range)
     findings = named(search, selection, fit, v, delays, inertia_z_range)
     rest = unnamed(search, selection, alpha=alpha, floor=floor, total=total)

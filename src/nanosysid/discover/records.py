@@ -91,7 +91,8 @@ class Pick:
     def evidence(self) -> dict[str, Any]:
         c = self.candidate
         return {"round": self.round, "heldout_gain": c.heldout_gain, "size": c.size, "z": c.z, "p": c.p,
-                "blocks_improved": c.blocks_improved, "blocks": c.blocks}
+                "blocks_improved": c.blocks_improved, "blocks": c.blocks,
+                **({"history": self.history} if self.history is not None else {})}
 
 
 @dataclass
@@ -157,7 +158,7 @@ class DiscoveryResult:
     sindy: dict[str, Any] | None = None
     analysis: dict[str, Any] = field(default_factory=dict)
     limit: protocol.Scores | None = None
-    # entries of the rotor speeds' history the selection chose and the history check dropped
+    # entries the selection chose and the reference checks dropped (select.check_history)
     dropped: list[dict[str, Any]] = field(default_factory=list)
     # one row per training flight left out (nanosysid.discover.stability)
     folds: list[dict[str, Any]] = field(default_factory=list)

@@ -18,6 +18,7 @@ import numpy as np
 
 from nanosysid.discover import generic
 from nanosysid.discover.records import Candidate, Pick
+from nanosysid.discover.fit import COLUMN_ENTRIES
 from nanosysid.discover.search import Search, channels_of
 from nanosysid.discover.sources import Pairs, history_check
 from nanosysid.discover.stats import jackknife, pvalue
@@ -110,24 +111,45 @@ def prune(search: Search, selection: Selection, share: float) -> Selection:
     return Selection(selection.rounds, kept, chosen, delay, selection.dropped)
 
 
-def check_history(search: Search, selection: Selection, pairs: Pairs) -> Selection:
-    """Drop a chosen entry of the rotor speeds' history whose fit does not repeat with the
-    reference (:func:`nanosysid.discover.sources.history_check`): the controller's answer to a
-    disturbance of time, not a lag. Each such pick's check is kept on it."""
+def check_history(search: Search, selection: Selection, pairs: Pairs, *, alpha: float, floor: float) -> Selection:
+    """Drop a chosen entry that is not what it says. Every entry's fit must repeat with the
+    reference, its instrumental estimate agreeing with least squares
+    (:func:`nanosysid.discover.sources.history_check`): else it is fitted to the controller's
+    answer to a disturbance of time (in closed loop a disturbance torque moves the angular
+    acceleration an inertia correction is made of, and the rotor speeds a lag is made of). An
+    entry of the rotor speeds' history must also, added to every entry of the state in the
+    library fitted at once (and the other chosen ones), still improve the held-out fit by the
+    selection's own test (one-sided signed-rank over blocks at ``alpha``, a size of at least
+    ``floor``): else it stands in for a function of the state (a rotor's inertia answers the
+    rotor speeds' rates as a short lag does). Each pick's checks are kept on it."""
     kept, dropped = [], list(selection.dropped)
+    state = [n for n in COLUMN_ENTRIES[1:] if not entry(n).needs]
+    g = search.grams(selection.delay)
+    fitted = split_coefficients([NOMINAL.name, *selection.chosen], g.solve(search.cols(selection.chosen)))
+    data = search.data(selection.delay)
+    # every entry against its partial residual (what all the chosen leave, plus its own part): an
+    # entry's own residual without it would hand its part to a collinear rival (a rotor spread
+    # and a centre-of-gravity offset both make a steady roll torque)
+    left, _ = search.residual(selection.chosen, selection.delay)
     for pk in selection.picks:
-        if pk.name == DELAY.name or "history" not in entry(pk.name).needs:
+        if pk.name == DELAY.name:
             kept.append(pk)
             continue
         others = [n for n in selection.chosen if n != pk.name]
-        resid, _ = search.residual(others, selection.delay)
-        fitted = search.grams(selection.delay).solve(search.cols(selection.chosen))
-        theta = np.array(split_coefficients([NOMINAL.name, *selection.chosen], fitted)[pk.name])
-        X = np.concatenate([fd.features[pk.name] for fd in search.data(selection.delay)])
-        contribution = (X @ theta) * search.weights
-        g = search.grams(selection.delay)
-        pk.history = history_check(contribution, resid, pairs, search.blocks, g.fold)
-        (kept if pk.history["holds"] else dropped).append(pk)
+        X = np.concatenate([fd.features[pk.name] for fd in data])
+        contribution = (X @ np.array(fitted[pk.name])) * search.weights
+        pk.history = history_check(contribution, left + contribution, pairs, search.blocks, g.fold)
+        holds = pk.history["holds"]
+        if "history" in entry(pk.name).needs:
+            base = others + [n for n in state if n not in others]
+            without, _ = g.heldout(search.cols(base))
+            with_it, _ = g.heldout(search.cols(base + [pk.name]))
+            gains = without - with_it
+            z, p = pvalue(gains)
+            size = float(np.sqrt(max(gains.sum(), 0.0) / len(search.blocks)))
+            pk.history["beyond_state"] = {"z": z, "p": p, "size": size, "holds": bool(p <= alpha and size >= floor)}
+            holds = holds and pk.history["beyond_state"]["holds"]
+        (kept if holds else dropped).append(pk)
     chosen = [pk.name for pk in kept if pk.name != DELAY.name]
     return Selection(selection.rounds, kept, chosen, selection.delay, dropped)
 

@@ -25,12 +25,17 @@ import numpy as np
 from nanosysid.dataio import Flight
 from nanosysid.discover.stats import half_width, jackknife, pvalue
 
-__all__ = ["reference_pairs", "Pairs", "history_check", "source", "SOURCES", "SAME_REFERENCE"]
+__all__ = ["reference_pairs", "Pairs", "history_check", "source", "SOURCES", "REPEATS", "SAME_REFERENCE"]
 
 # two flights fly one reference when their positions, time for time, differ by less than this
 # share of the positions' own spread (RMS, over the time both flew)
 SAME_REFERENCE = 0.35
-SOURCES = ("the input history", "time", "undecided")
+# the most the instrumental estimate of a history entry's size may exceed the least-squares one
+AGREE = 1.5
+# a residual that repeats between runs of one reference is a function of the reference: of the
+# input history or of a state signal the library lacks
+SOURCES = ("the reference", "time", "undecided")
+REPEATS = SOURCES[0]
 
 
 @dataclass
@@ -100,9 +105,15 @@ def history_check(contribution: np.ndarray, residual: np.ndarray, pairs: Pairs, 
     contribution repeats with the reference); a disturbance that the contribution only follows
     gives 0. The interval is the jackknife over the folds of blocks (Student's t).
 
-    Returns ``{"checked", "slope", "ci", "pairs" (samples), "holds"}``; ``holds`` is False when
-    the interval lies below one half: less than half of what the entry fits repeats between
-    runs of one reference."""
+    The slope is also the instrumental estimate of the entry's size over the least-squares one:
+    above :data:`AGREE` times it, least squares has fitted less than what repeats with the
+    reference (a biased correction beside it, or the controller's answer to a disturbance, pulls
+    its columns), so its coefficient is not the effect's either.
+
+    Returns ``{"checked", "slope", "ci", "samples", "holds"}``; ``holds`` is False when the
+    interval lies below one half (less than half of what the entry fits repeats between runs of
+    one reference) or the slope is above :data:`AGREE` (the two estimates disagree by more than
+    half)."""
     ok = pairs.index >= 0
     if ok.sum() < 100:
         return {"checked": False, "holds": True, "samples": int(ok.sum())}
@@ -120,7 +131,8 @@ def history_check(contribution: np.ndarray, residual: np.ndarray, pairs: Pairs, 
     se = float(jackknife(np.asarray(drops)[:, None])[0])
     half = half_width(se, k, level)
     lo, hi = slope - half, slope + half
-    return {"checked": True, "slope": slope, "ci": (lo, hi), "samples": int(ok.sum()), "holds": bool(hi >= 0.5)}
+    return {"checked": True, "slope": slope, "ci": (lo, hi), "samples": int(ok.sum()),
+            "holds": bool(hi >= 0.5 and slope <= AGREE)}
 
 
 def source(left: np.ndarray, pairs: Pairs, blocks: np.ndarray, alpha: float) -> dict[str, Any]:
@@ -128,8 +140,8 @@ def source(left: np.ndarray, pairs: Pairs, blocks: np.ndarray, alpha: float) -> 
     a function of: the share of its power above the noise that repeats between runs of one
     reference (the mean product of a sample and its partner's over the mean square less the
     noise's), tested block by block (one-sided signed-rank test that the products lean
-    positive). Most of it repeats, significantly: a function of the reference, i.e. of the input
-    history (the state was tried); less than half does, with runs to compare: a function of
+    positive). Most of it repeats, significantly: a function of the reference (the input history,
+    or a state signal the library lacks); less than half does, with runs to compare: a function of
     time (the share that repeats is said: a biased coefficient leaves a part that follows the
     reference); no runs of one reference: undecided."""
     ok = pairs.index >= 0

@@ -43,9 +43,12 @@ def leave_one_flight_out(search: Search, selection: Selection, vehicle: Vehicle,
             continue
         total = float(sub.grams(0.0).et.sum())
         sel = prune(sub, select(sub, delays, alpha=alpha, floor=floor, total=total), share)
-        sel = check_history(sub, sel, reference_pairs(sub.flights, [d.t for d in sub.data(0.0)]))
+        pairs = reference_pairs(sub.flights, [d.t for d in sub.data(0.0)])
+        sel = check_history(sub, sel, pairs, alpha=alpha, floor=floor)
         rest = unnamed(sub, sel, alpha=alpha, floor=floor, total=total)
-        left = stateless(rest.left, sub, alpha, floor, total, delay=sel.delay)
+        said = stateless(rest.left, sub, alpha, floor, total, pairs, sel.delay)
+        left = [f for f in said if f.verdict == STATELESS]
+        rest.findings += [f for f in said if f.verdict != STATELESS]
         offered = set(sel.chosen) | {a for pk in sel.picks for a in pk.alternatives}
         if sel.delay:
             offered.add(DELAY.name)

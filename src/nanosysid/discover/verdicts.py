@@ -13,7 +13,7 @@ import numpy as np
 
 from nanosysid.discover import generic
 from nanosysid.discover.records import STATELESS, Finding
-from nanosysid.discover.sources import Pairs, source
+from nanosysid.discover.sources import REPEATS, Pairs, source
 from nanosysid.discover.search import Search, channels_of, true_torque_grams
 from nanosysid.discover.select import Selection
 from nanosysid.discover.stats import half_width, jackknife, pvalue
@@ -273,12 +273,18 @@ def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, tota
                 "blocks_improved": int((excess > 0).sum()), "blocks": B, "saturated": True,
                 "saturated_p": ps, "saturated_size": ss, "added": False}))
             continue
-        out.append(Finding(STATELESS, None, (CHANNELS[c],), {}, {
-            "heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
-            "blocks_improved": int((excess > 0).sum()), "blocks": B, "band": _band(left[:, c], search.blocks, dt),
-            "rms": float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()) / search.weights[c])}))
+        evidence = {"heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
+                    "blocks_improved": int((excess > 0).sum()), "blocks": B,
+                    "band": _band(left[:, c], search.blocks, dt),
+                    "rms": float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()) / search.weights[c])}
         if pairs is not None:
-            out[-1].evidence["source"] = source(left[:, c], pairs, search.blocks, alpha)
+            evidence["source"] = source(left[:, c], pairs, search.blocks, alpha)
+        # a residual that repeats with the reference is a function of what the reference makes of
+        # the flight: the state beyond the library's entries and terms, or the input history beyond
+        # its lags; no test here tells the two apart, so it is unnamed, never "not of the state"
+        repeats = evidence.get("source", {}).get("source") == REPEATS
+        out.append(Finding("unnamed" if repeats else STATELESS, None, (CHANNELS[c],), {},
+                           {**evidence, "repeats": True, "added": False} if repeats else evidence))
     return out
 
 

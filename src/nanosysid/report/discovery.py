@@ -10,6 +10,7 @@ from typing import Any
 from nanosysid.dataio import atomic_file, json_text
 from nanosysid.discover import CHANNELS, LIBRARY, VERDICTS, DiscoveryResult
 from nanosysid.discover.analysis import BANDS, REGIMES
+from nanosysid.discover.sources import AGREE
 from nanosysid.effects import SLOW_TIMES
 from nanosysid.metrics import QUANTITIES
 from nanosysid.report.tables import results_table_md
@@ -103,6 +104,11 @@ def _verdict_line(f) -> str:
                 f"{ev['blocks_improved']} / {ev['blocks']} blocks above the noise{folds}) that neither a library "
                 f"entry nor the generic terms of the state capture, in the band {ev['band']}. "
                 + _source_text(ev.get("source")))
+    if ev.get("repeats"):
+        return (f"**Unnamed** disagreement on {', '.join(f.channels)}: {_fmt(1e3 * ev['rms'])} {_unit(f.channels[0])} "
+                f"RMS ({ev['size']:.2f} noise floors, z = {ev['z']:.1f}, p = {ev['p']:.2g}{folds}) that neither a "
+                f"library entry nor the generic terms of the state capture, in the band {ev['band']}. "
+                + _source_text(ev["source"]) + " Not in the augmented model.")
     if ev.get("saturated"):
         return (f"**Unnamed** disagreement on {', '.join(f.channels)} ({stats}{folds}): no entry was significant "
                 f"alone, but every state entry of the library fitted at once, with the generic terms, leaves no "
@@ -134,8 +140,9 @@ def _source_text(src: dict[str, Any] | None) -> str:
     if src["source"] == "time":
         return (f"**A function of time**: {shared}, so most of it is a new realisation every flight, a disturbance "
                 "no model of the measured signals can predict.")
-    return (f"**A function of the input history**: {shared}, so it follows the reference, through the rotor speeds' "
-            "history or a state signal the library lacks, not time.")
+    return (f"**A function of the reference**: {shared}, so it is not time: it follows what the reference makes of "
+            "the flight, through the rotor speeds' history beyond the library's lags or a state signal the library "
+            "lacks (no test here tells the two apart).")
 
 
 def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
@@ -149,6 +156,8 @@ def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
             lines.append(f"- `{f['name']}` named ({where})")
         elif f["verdict"] == "ambiguous":
             lines.append(f"- ambiguous ({where}): " + " or ".join(f"`{a}`" for a in f["alternatives"]))
+        elif f["verdict"] == "unnamed" and f["evidence"].get("repeats"):
+            lines.append(f"- unnamed ({where}): repeats with the reference")
         elif f["verdict"] == "unnamed":
             lines.append(f"- unnamed ({where}): " + " + ".join(f["params"]))
         elif f["verdict"] == "unstable":
@@ -249,11 +258,23 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
                   "left); grey: ± the channel's noise floor.*", ""]
     for d in result.dropped:
         h = d["history"]
-        L += [f"**`{d['entry']}` chosen, then dropped**: its fit does not repeat with the reference. With the partner "
-              f"run's columns as the instrument, the slope of the residual on its contribution is {h['slope']:.2f} "
-              f"(95 % interval {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; 1 for a real lag): what it fitted is the "
-              "controller's answer to a disturbance of the flight's own time, which moves the rotor speeds it is "
-              "made of.", ""]
+        if not h.get("holds", True):
+            iv = (f"With the partner run's columns as the instrument, the slope of the residual on its contribution is "
+                  f"{h['slope']:.2f} (95 % interval {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; 1 for a real effect)")
+            if h["slope"] > AGREE:
+                L += [f"**`{d['entry']}` chosen, then dropped**: least squares fitted less than what repeats with the "
+                      f"reference. {iv}: its columns also carry the controller's answer to a disturbance, and its "
+                      "coefficient is not the effect's.", ""]
+            else:
+                L += [f"**`{d['entry']}` chosen, then dropped**: its fit does not repeat with the reference. {iv}: "
+                      "what it fitted is the controller's answer to a disturbance of the flight's own time, which "
+                      "moves the signals it is made of.", ""]
+        else:
+            b = h["beyond_state"]
+            L += [f"**`{d['entry']}` chosen, then dropped**: added to every state entry of the library fitted at "
+                  f"once, it improves the held-out fit by {b['size']:.2f} noise floors (p = {b['p']:.2g}), short of "
+                  "the selection's test: what it fitted, a function of the state fits as well (a rotor's inertia "
+                  "answers the rotor speeds' rates as a short lag does).", ""]
     L += [_inertia_z_text(result), ""]
     if result.k_m.get("held"):
         L += [f"k_M is held at the identify stage's {result.k_m['given']:.4g} N m s²/rad²; a least-squares refit on "
@@ -375,6 +396,12 @@ def _finding_phrase(f) -> str:
         coef = "; ".join(f"{k} = {v:.3g} ({ev['ci'][k][0]:.3g} … {ev['ci'][k][1]:.3g})" for k, v in f.params.items())
         held = f", reached on {ev['folds']['held']} of {ev['folds']['of']} flight folds" if "folds" in ev else ""
         return f"{f.verdict} {what}{': ' + coef if coef else ''}{held}"
+    if f.verdict == "unnamed" and ev.get("repeats"):
+        src = ev["source"]
+        return (f"unnamed on {', '.join(f.channels)}: {1e3 * ev['rms']:.3g} {_unit(f.channels[0])} RMS in {ev['band']} "
+                f"that no entry or generic term of the state captures, and {100 * src['repeat_share']:.0f} % of it "
+                f"repeats between runs of one reference (p = {src['p']:.2g}): a function of the reference (the input "
+                "history or a state signal the library lacks), not of time")
     if f.verdict == "unnamed":
         return f"unnamed on {', '.join(f.channels)} (generic terms {', '.join(f.params)})"
     src = (ev.get("source") or {}).get("source", "undecided")
@@ -382,6 +409,17 @@ def _finding_phrase(f) -> str:
             f"in {ev['band']}, a function of {src}" if src != "undecided" else
             f"not a function of the state on {', '.join(f.channels)}: {1e3 * ev['rms']:.3g} {_unit(f.channels[0])} RMS "
             f"in {ev['band']}, its source undecided")
+
+
+def _history_text(h: dict[str, Any]) -> str:
+    """A history entry's two checks (:func:`nanosysid.discover.select.check_history`) in words."""
+    out = []
+    if h.get("checked"):
+        out.append(f"instrumental slope {h['slope']:.2f}, 95 % {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; a lag gives 1")
+    b = h.get("beyond_state")
+    if b:
+        out.append(f"beyond every state entry: {b['size']:.2f} noise floors, p = {b['p']:.2g}")
+    return "; ".join(out) or "not checked"
 
 
 def _explained(a: dict[str, Any], c: int, part: str) -> float:
@@ -450,12 +488,16 @@ def _observations(result: DiscoveryResult, references: dict[str, Any], figs: Pat
     dropped = next((d for d in result.dropped if d["entry"] == "slow_actuation"), None)
     row = _candidate_row(result, "slow_actuation")
     if slow is not None:
-        L.append(f"- **the input history (slow actuation)**: `slow_actuation` is {slow.verdict}.")
+        h = slow.evidence.get("history") or {}
+        L.append(f"- **the input history (slow actuation)**: `slow_actuation` is {slow.verdict}"
+                 + (f" ({_history_text(h)})" if h.get("checked") else "") + ".")
     elif dropped is not None:
         h = dropped["history"]
-        L.append(f"- **the input history (slow actuation)**: chosen, then dropped: its fit does not repeat with the "
-                 f"reference (instrumental slope {h['slope']:.2f}, 95 % {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; a lag "
-                 "gives 1): the controller's answer to a disturbance, not a lag.")
+        why = ("its instrumental and least-squares estimates disagree: the controller's answer to a disturbance "
+               "moves its columns" if not h.get("holds", True) else
+               "added to every state entry of the library at once, it no longer improves the held-out fit: it stood "
+               "in for a function of the state")
+        L.append(f"- **the input history (slow actuation)**: chosen, then dropped: {why} ({_history_text(h)}).")
     elif row is not None:
         L.append(f"- **the input history (slow actuation)**: tried in every round, never eligible (last round: "
                  f"held-out gain {100 * row['heldout_gain']:.3f} %, p = {row['p']:.2g}).")
