@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from nanosysid import effects
-from nanosysid.dynamics import rotor_wrench
+from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, rotor_wrench
 from nanosysid.dataio import Flight
 from nanosysid.identify import body_torque
 from nanosysid.rollout import advance_inputs
@@ -128,6 +128,24 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
                              for _, fn in effects.TERM_SIGNALS.values()])
     return FlightData(flight.name, r[EDGE:-EDGE], feats, _smooth(terms, window, order)[EDGE:-EDGE],
                       flight.t[EDGE:-EDGE])
+
+
+def rotor_products(flight: Flight, t: np.ndarray, delay: float, *, window: int = 15, order: int = 3) -> np.ndarray:
+    """Functions of the rotor speeds one by one that no entry or generic term is made of, at the
+    regression samples ``t`` (s) of ``flight``, smoothed as the residual is, ``(len(t), 21)``: the
+    speeds' roll, pitch and yaw differences (rad/s) and their products with the body velocity and
+    rates. Each rotor's drag from its own air velocity (``v + w x r_i``) and its thrust's
+    unequal share make torques of this form; the library's drags weigh the rotors by their sum."""
+    dt = float(np.median(np.diff(flight.t)))
+    u = advance_inputs(torch.from_numpy(flight.u)[None], delay / dt)[0].numpy()
+    diffs = u @ np.array([ROTOR_Y, ROTOR_X, SPIN], dtype=float).T  # (T, 3)
+    x = torch.from_numpy(np.ascontiguousarray(flight.y))
+    sg = effects.signals(x, torch.from_numpy(u), torch.zeros_like(torch.from_numpy(u)))
+    state = np.column_stack([torch.as_tensor(c).numpy() for c in (*sg.v, *sg.w)])  # (T, 6)
+    cols = np.column_stack([diffs, (diffs[:, :, None] * state[:, None, :]).reshape(len(u), -1)])
+    cols = _smooth(cols, window, order)
+    idx = np.clip(np.searchsorted(flight.t, t - 1e-9), 0, len(flight.t) - 1)
+    return cols[idx]
 
 
 def _smooth(a: np.ndarray, window: int, order: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:

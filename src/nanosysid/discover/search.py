@@ -10,7 +10,8 @@ import numpy as np
 
 from nanosysid.dataio import Flight
 from nanosysid.discover import generic
-from nanosysid.discover.fit import COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench, noise_floor
+from nanosysid.discover.fit import (COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench,
+                                    noise_floor, rotor_products)
 from nanosysid.effects import CHANNELS, DELAY, NOMINAL, entry, split_coefficients
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
@@ -104,6 +105,11 @@ class Search:
             lib = generic.TermLibrary(signals)
             self._terms[key] = (lib, lib(signals))
         return self._terms[key]
+
+    def rotor_products(self, delay: float) -> np.ndarray:
+        """:func:`~nanosysid.discover.fit.rotor_products` on every sample ``(N, 21)``."""
+        return np.concatenate([rotor_products(f, d.t, delay, window=self.window, order=self.order)
+                               for f, d in zip(self.flights, self.data(delay))])
 
     def touched(self, name: str) -> set[int]:
         """The channels an entry's columns act on."""

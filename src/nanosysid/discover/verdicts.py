@@ -238,10 +238,12 @@ def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, tota
     the entries and the generic terms of the state: the one-sided Wilcoxon test that the blocks'
     mean squares exceed 1 (the noise's), Bonferroni over the six channels, and a size of at least
     ``floor`` (the root of the excess mean square), also after every state entry of the library
-    fitted at once and the generic terms on what they leave (else it is an unnamed function of
-    the state, none of whose parts was significant alone). Each is a finding "not a function of the
-    state", with the frequency band holding the middle half of its power and, given runs of one
-    reference (``pairs``), what it is a function of instead (:func:`nanosysid.discover.sources.source`)."""
+    fitted at once, the generic terms and the rotor speeds one by one
+    (:func:`nanosysid.discover.fit.rotor_products`) on what they leave (else it is an unnamed
+    function of the state, none of whose parts was significant alone). Each is a finding "not a
+    function of the state", with the frequency band holding the middle half of its power and,
+    given runs of one reference (``pairs``), what it is a function of instead
+    (:func:`nanosysid.discover.sources.source`); one that repeats with the reference is unnamed."""
     B = int(search.blocks.max()) + 1
     counts = np.bincount(search.blocks, minlength=B)
     dt = float(np.median(np.diff(search.flights[0].t)))
@@ -264,8 +266,14 @@ def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, tota
         # was significant for), with the generic terms on what they leave
         if saturated is None:
             saturated = _saturated(search, delay)
+            rotors = search.rotor_products(delay)
+            rotors = rotors / np.maximum(np.abs(rotors).max(axis=0), 1e-300)
         sat = saturated[:, c] - search.terms(delay)[1] @ generic.sparse_fit(search.terms(delay)[1],
                                                                             saturated[:, [c]])[0]
+        # and the rotor speeds one by one (their differences and products with the velocity and
+        # rates: each rotor's own drag and thrust share), fitted on every sample: 21 columns
+        # take a few thousandths of the noise's power from thousands of samples
+        sat = sat - rotors @ np.linalg.lstsq(rotors, sat, rcond=1e-10)[0]
         _, zs, ps, ss = above(sat)
         if ps > alpha or ss < least:
             out.append(Finding("unnamed", None, (CHANNELS[c],), {}, {
