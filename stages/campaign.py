@@ -63,7 +63,8 @@ def main(cfg: DictConfig) -> dict:
             table.to_parquet(f, index=False)
         with atomic_file(tmp / "families.json") as f:
             f.write_text(json_text([{k: r.get(k) for k in ("world", "family", "effects", "named", "ambiguous",
-                                                          "sources", "repeats", "history_dropped", "inertia_z", "error")}
+                                                          "sources", "repeats", "history_dropped", "inertia_z", "diverged",
+                                                          "error")}
                                     for r in family_rows], sort_keys=True))
         recall_figure(table, described, summary["strength_bins"], relevant, tmp / "recall.png")
         confusion_figure(table, effects, list(LIBRARY), tmp / "confusion.png")

@@ -96,7 +96,8 @@ from nanosysid.discover.select import check_history, prune, select
 from nanosysid.discover.sources import reference_pairs
 from nanosysid.discover.verdicts import coefficients, named, stateless, unnamed
 from nanosysid.effects import CHANNELS, LIBRARY
-from nanosysid.errors import ConfigError, DataError
+from nanosysid.metrics import QUANTITIES
+from nanosysid.errors import ConfigError, DataError, PredictionError
 from nanosysid.identify import identify
 from nanosysid.models.physics import PhysicsStep
 from nanosysid.rollout import StepPredictor
@@ -132,7 +133,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
         oracle: Any = None, limit: Any = None, analysis: bool = True, sindy: bool = False,
         inertia_z_range: tuple[float, float] | None = None, batch_size: int = 8192, flights_out: bool = False,
-        hold_k_m: bool = False, progress: bool = False) -> DiscoveryResult:
+        hold_k_m: bool = False, progress: bool = False, diverged_ok: bool = False) -> DiscoveryResult:
     """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
 
     Args:
@@ -165,6 +166,10 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             against a k_M estimated without it, which on simulated worlds with such a lag keeps
             the lag from being named. Both values are reported.
         progress: A progress bar over those folds.
+        diverged_ok: Where the augmented model's rollouts on the test flights are not finite,
+            return the verdicts with infinite scores and the reason in ``diverged`` instead of
+            raising :class:`~nanosysid.errors.PredictionError` (a campaign judges the verdicts
+            of every world).
     """
     if len(train_flights) < 1:
         raise DataError("discover needs at least 1 training flight")
@@ -203,8 +208,16 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     def score(predictor):
         return protocol.evaluate(predictor, test_flights, horizon=horizon, batch_size=batch_size)
 
-    result = DiscoveryResult(findings, score(nominal), score(model), model, nominal, augmented_vehicle,
+    diverged = None
+    try:
+        after = score(model)
+    except PredictionError as e:
+        if not diverged_ok:
+            raise
+        after, diverged = protocol.Scores({q: np.full(horizon, np.inf) for q in QUANTITIES}, 0), str(e)
+    result = DiscoveryResult(findings, score(nominal), after, model, nominal, augmented_vehicle,
                              selection.rounds, alpha, floor, search.noise, score(oracle) if oracle else None)
+    result.diverged = diverged
     # the paper's physics model on the same nominal vehicle: the angular velocity held (dω/dt = 0)
     result.held_rate = score(StepPredictor(PhysicsStep(v, dt=nominal.step.dt, angular_dynamics=False), name="physics"))
     result.dropped = [{"entry": pk.name, "history": pk.history} for pk in selection.dropped]
@@ -216,7 +229,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         result.limit = score(limit)
     if sindy:
         result.sindy = sindy_baseline(search, v, test_flights, horizon, batch_size)
-    if analysis:
+    if analysis and diverged is None:
         result.analysis = disagreement(result, search, fit.names, fit.measured, selection.delay, test_flights,
                                        generic_fits=rest.fits, horizon=horizon, batch_size=batch_size)
     return result

@@ -168,6 +168,9 @@ class DiscoveryResult:
     k_m: dict[str, Any] = field(default_factory=dict)
     # the paper's physics model (the nominal vehicle, dω/dt = 0) on the test flights
     held_rate: protocol.Scores | None = None
+    # why the augmented model's rollouts on the test flights are not finite (its scores are then
+    # infinite), where the caller accepts that; None where they are
+    diverged: str | None = None
 
     @property
     def found(self) -> list[Finding]:

@@ -74,14 +74,15 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
               "slow lag of the rotors' wrench alone (`thrust_lag`, which `slow_actuation` describes), turbulence "
               "alone (a function of time), and state effects alone (the inertia, a torque scale, the drags, the "
               "rotor terms: never \"not a function of the state\"). Counts of worlds; a world whose discovery "
-              "failed (its augmented model diverging on the test flight) is counted apart.", "",
-              "| family | worlds | failed | `slow_actuation` named | offered (named or ambiguous) | chosen, then "
-              "dropped by its checks | with a finding \"not a function of the state\" | … called a function of time "
+              "failed is counted apart; where the augmented model's rollouts on the test flight diverge, its "
+              "verdicts are counted and the divergence too.", "",
+              "| family | worlds | failed | augmented model diverged | `slow_actuation` named | offered (named or "
+              "ambiguous) | chosen, then dropped by its checks | with a finding \"not a function of the state\" | … called a function of time "
               "| a residual left unnamed that repeats with the reference | yaw inertia within 10 % | yaw inertia "
               "claimed identified (of them within 10 %) |",
-              "|---|---|---|---|---|---|---|---|---|---|---|"]
+              "|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for name, d in fam.items():
-            L.append(f"| {name} | {d['worlds']} | {d['failed']} | {d['slow_actuation_named']} | "
+            L.append(f"| {name} | {d['worlds']} | {d['failed']} | {d['diverged']} | {d['slow_actuation_named']} | "
                      f"{d['slow_actuation_offered']} | {d['slow_actuation_dropped']} | {d['stateless']} | "
                      f"{d['of_time']} | {d['repeats']} | {d['inertia_z_within']} | {d['inertia_z_claimed']} "
                      f"({d['inertia_z_claimed_within']}) |")
