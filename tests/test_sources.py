@@ -4,7 +4,7 @@ one reference share what the reference makes and nothing of their own disturbanc
 import numpy as np
 
 from nanosysid.dataio import Flight
-from nanosysid.discover.sources import history_check, reference_pairs, source
+from nanosysid.discover.sources import reference_check, reference_pairs, source
 
 
 def _flights(rng, n=2000):
@@ -71,12 +71,12 @@ def test_a_fit_to_the_controllers_answer_to_a_disturbance_has_an_instrumental_sl
     disturbance = np.zeros((4 * n, 6))
     disturbance[:, 3] = d + rng.normal(size=4 * n)
     ols = float((column * disturbance[:, 3]).sum() / (column ** 2).sum())
-    got = history_check(contribution, disturbance, pairs, blocks, folds)
+    got = reference_check(contribution, disturbance, pairs, blocks, folds)
     assert ols > 0.3 and got["ci"][0] < 0 < got["ci"][1] and not got["holds"]
     # a real lag: the residual is the column itself (plus noise): slope 1
     lag = np.zeros((4 * n, 6))
     lag[:, 3] = column + rng.normal(size=4 * n)
-    got = history_check(contribution, lag, pairs, blocks, folds)
+    got = reference_check(contribution, lag, pairs, blocks, folds)
     assert got["holds"] and got["ci"][0] < 1 < got["ci"][1]
 
 
@@ -93,5 +93,5 @@ def test_a_fit_that_least_squares_attenuated_fails_the_check_though_it_repeats()
     contribution[:, 3] = column
     residual = np.zeros((4 * n, 6))
     residual[:, 3] = 2.0 * reference + rng.normal(size=4 * n)
-    got = history_check(contribution, residual, pairs, blocks, folds)
+    got = reference_check(contribution, residual, pairs, blocks, folds)
     assert got["ci"][0] < 2.0 < got["ci"][1] and not got["holds"]

@@ -50,7 +50,7 @@ finding.
 **History and time.** An entry of the rotor speeds' history is kept only if its fit repeats
 with the reference, its instrumental estimate (the partner run's columns) agreeing with least
 squares, and if, added to every state entry of the library at once, it still passes the
-selection's test (:func:`~nanosysid.discover.select.check_history`). A residual that stays above
+selection's test (:func:`~nanosysid.discover.select.check_reference`). A residual that stays above
 the noise after every state entry and the generic terms is **not a function of the state** when
 it does not repeat between runs of one reference (a function of time); when it does repeat, it
 follows the reference through the state or the input history, which no test here tells apart,
@@ -92,7 +92,7 @@ from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.discover.records import STATELESS, UNSTABLE, VERDICTS, Candidate, DiscoveryResult, Finding, Pick
 from nanosysid.discover.search import Search
 from nanosysid.discover import stability
-from nanosysid.discover.select import check_history, prune, select
+from nanosysid.discover.select import check_reference, prune, select
 from nanosysid.discover.sources import reference_pairs
 from nanosysid.discover.verdicts import coefficients, named, stateless, unnamed
 from nanosysid.effects import CHANNELS, LIBRARY
@@ -186,7 +186,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
 
     pairs = reference_pairs(search.flights, [d.t for d in search.data(0.0)])
     selection = prune(search, select(search, delays, alpha=alpha, floor=floor, total=total), share)
-    selection = check_history(search, selection, pairs, alpha=alpha, floor=floor)
+    selection = check_reference(search, selection, pairs, alpha=alpha, floor=floor)
     fit = coefficients(search, selection, v, inertia_z_range)
     findings = named(search, selection, fit, v, delays, inertia_z_range)
     rest = unnamed(search, selection, alpha=alpha, floor=floor, total=total)

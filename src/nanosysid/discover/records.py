@@ -158,7 +158,7 @@ class DiscoveryResult:
     sindy: dict[str, Any] | None = None
     analysis: dict[str, Any] = field(default_factory=dict)
     limit: protocol.Scores | None = None
-    # entries the selection chose and the reference checks dropped (select.check_history)
+    # entries the selection chose and the reference checks dropped (select.check_reference)
     dropped: list[dict[str, Any]] = field(default_factory=list)
     # one row per training flight left out (nanosysid.discover.stability)
     folds: list[dict[str, Any]] = field(default_factory=list)

@@ -20,11 +20,11 @@ from nanosysid.discover import generic
 from nanosysid.discover.records import Candidate, Pick
 from nanosysid.discover.fit import COLUMN_ENTRIES
 from nanosysid.discover.search import Search, channels_of
-from nanosysid.discover.sources import Pairs, history_check
+from nanosysid.discover.sources import Pairs, reference_check
 from nanosysid.discover.stats import jackknife, pvalue
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, split_coefficients
 
-__all__ = ["Selection", "select", "prune", "check_history"]
+__all__ = ["Selection", "select", "prune", "check_reference"]
 
 
 @dataclass
@@ -111,10 +111,10 @@ def prune(search: Search, selection: Selection, share: float) -> Selection:
     return Selection(selection.rounds, kept, chosen, delay, selection.dropped)
 
 
-def check_history(search: Search, selection: Selection, pairs: Pairs, *, alpha: float, floor: float) -> Selection:
+def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha: float, floor: float) -> Selection:
     """Drop a chosen entry that is not what it says. Every entry's fit must repeat with the
     reference, its instrumental estimate agreeing with least squares
-    (:func:`nanosysid.discover.sources.history_check`): else it is fitted to the controller's
+    (:func:`nanosysid.discover.sources.reference_check`): else it is fitted to the controller's
     answer to a disturbance of time (in closed loop a disturbance torque moves the angular
     acceleration an inertia correction is made of, and the rotor speeds a lag is made of). An
     entry of the rotor speeds' history must also, added to every entry of the state in the
@@ -138,7 +138,7 @@ def check_history(search: Search, selection: Selection, pairs: Pairs, *, alpha: 
         others = [n for n in selection.chosen if n != pk.name]
         X = np.concatenate([fd.features[pk.name] for fd in data])
         contribution = (X @ np.array(fitted[pk.name])) * search.weights
-        pk.history = history_check(contribution, left + contribution, pairs, search.blocks, g.fold)
+        pk.history = reference_check(contribution, left + contribution, pairs, search.blocks, g.fold)
         holds = pk.history["holds"]
         if "history" in entry(pk.name).needs:
             base = others + [n for n in state if n not in others]

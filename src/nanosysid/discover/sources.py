@@ -7,7 +7,7 @@ history (:data:`nanosysid.effects.SLOW_TIMES`) fits a disturbance as well as a r
 tells them apart is the reference. Two runs of one reference ask the rotors for nearly the same
 speeds, while a disturbance is a new realisation every flight: the partner run's columns are an
 instrument, correlated with what the reference makes of a run's columns and independent of the
-run's own disturbance (:func:`history_check`). Likewise, a residual that repeats between runs
+run's own disturbance (:func:`reference_check`). Likewise, a residual that repeats between runs
 of one reference is a function of the reference (the input history or a state signal the
 library lacks); one that does not is a function of time (:func:`source`).
 
@@ -25,7 +25,7 @@ import numpy as np
 from nanosysid.dataio import Flight
 from nanosysid.discover.stats import half_width, jackknife, pvalue
 
-__all__ = ["reference_pairs", "Pairs", "history_check", "source", "SOURCES", "REPEATS", "SAME_REFERENCE"]
+__all__ = ["reference_pairs", "Pairs", "reference_check", "source", "SOURCES", "REPEATS", "SAME_REFERENCE"]
 
 # two flights fly one reference when their positions, time for time, differ by less than this
 # share of the positions' own spread (RMS, over the time both flew)
@@ -96,14 +96,13 @@ def reference_pairs(flights: Sequence[Flight], times: Sequence[np.ndarray]) -> P
     return Pairs(partners, index, agreement)
 
 
-def history_check(contribution: np.ndarray, residual: np.ndarray, pairs: Pairs, blocks: np.ndarray,
-                  folds: np.ndarray, level: float = 0.95) -> dict[str, Any]:
+def reference_check(contribution: np.ndarray, residual: np.ndarray, pairs: Pairs, blocks: np.ndarray,
+                    folds: np.ndarray, level: float = 0.95) -> dict[str, Any]:
     """Whether an entry's fitted contribution ``(N, 6)`` (weighted) is what it says, or the
     controller's answer to a disturbance: the instrumental-variable slope of the residual it
     was fitted to ``(N, 6)`` on the contribution, the partner run's contribution at the same
-    time the instrument. A real effect of the rotor speeds' history gives a slope near 1 (its
-    contribution repeats with the reference); a disturbance that the contribution only follows
-    gives 0. The interval is the jackknife over the folds of blocks (Student's t).
+    time the instrument. A real effect gives a slope near 1 (its contribution repeats with the
+    reference); a disturbance that the contribution only follows gives 0. The interval is the jackknife over the folds of blocks (Student's t).
 
     The slope is also the instrumental estimate of the entry's size over the least-squares one:
     above :data:`AGREE` times it, least squares has fitted less than what repeats with the

@@ -17,7 +17,7 @@ from tqdm import tqdm
 
 from nanosysid.discover.records import STATELESS, UNSTABLE, Finding
 from nanosysid.discover.search import Search, true_torque_grams
-from nanosysid.discover.select import Selection, check_history, prune, select
+from nanosysid.discover.select import Selection, check_reference, prune, select
 from nanosysid.discover.sources import reference_pairs
 from nanosysid.discover.stats import half_width, jackknife
 from nanosysid.discover.verdicts import stateless, unnamed
@@ -44,7 +44,7 @@ def leave_one_flight_out(search: Search, selection: Selection, vehicle: Vehicle,
         total = float(sub.grams(0.0).et.sum())
         sel = prune(sub, select(sub, delays, alpha=alpha, floor=floor, total=total), share)
         pairs = reference_pairs(sub.flights, [d.t for d in sub.data(0.0)])
-        sel = check_history(sub, sel, pairs, alpha=alpha, floor=floor)
+        sel = check_reference(sub, sel, pairs, alpha=alpha, floor=floor)
         rest = unnamed(sub, sel, alpha=alpha, floor=floor, total=total)
         said = stateless(rest.left, sub, alpha, floor, total, pairs, sel.delay)
         left = [f for f in said if f.verdict == STATELESS]

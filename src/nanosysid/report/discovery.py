@@ -411,8 +411,8 @@ def _finding_phrase(f) -> str:
             f"in {ev['band']}, its source undecided")
 
 
-def _history_text(h: dict[str, Any]) -> str:
-    """A history entry's two checks (:func:`nanosysid.discover.select.check_history`) in words."""
+def _reference_text(h: dict[str, Any]) -> str:
+    """An entry's checks against the reference (:func:`nanosysid.discover.select.check_reference`) in words."""
     out = []
     if h.get("checked"):
         out.append(f"instrumental slope {h['slope']:.2f}, 95 % {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; a lag gives 1")
@@ -490,14 +490,14 @@ def _observations(result: DiscoveryResult, references: dict[str, Any], figs: Pat
     if slow is not None:
         h = slow.evidence.get("history") or {}
         L.append(f"- **the input history (slow actuation)**: `slow_actuation` is {slow.verdict}"
-                 + (f" ({_history_text(h)})" if h.get("checked") else "") + ".")
+                 + (f" ({_reference_text(h)})" if h.get("checked") else "") + ".")
     elif dropped is not None:
         h = dropped["history"]
         why = ("its instrumental and least-squares estimates disagree: the controller's answer to a disturbance "
                "moves its columns" if not h.get("holds", True) else
                "added to every state entry of the library at once, it no longer improves the held-out fit: it stood "
                "in for a function of the state")
-        L.append(f"- **the input history (slow actuation)**: chosen, then dropped: {why} ({_history_text(h)}).")
+        L.append(f"- **the input history (slow actuation)**: chosen, then dropped: {why} ({_reference_text(h)}).")
     elif row is not None:
         L.append(f"- **the input history (slow actuation)**: tried in every round, never eligible (last round: "
                  f"held-out gain {100 * row['heldout_gain']:.3f} %, p = {row['p']:.2g}).")
