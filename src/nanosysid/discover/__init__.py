@@ -47,14 +47,14 @@ significantly more than nothing is an **unnamed** finding, and its sparse terms 
 augmented model. Anything that does not pass these tests is below the noise floor and is not a
 finding.
 
-**History and time.** An entry of the rotor speeds' history is kept only if its fit repeats
-with the reference, its instrumental estimate (the partner run's columns) agreeing with least
-squares, and if, added to every state entry of the library at once, it still passes the
-selection's test (:func:`~nanosysid.discover.select.check_reference`). A residual that stays above
-the noise after every state entry and the generic terms is **not a function of the state** when
-it does not repeat between runs of one reference (a function of time); when it does repeat, it
-follows the reference through the state or the input history, which no test here tells apart,
-and it is **unnamed** (:func:`~nanosysid.discover.verdicts.stateless`).
+**History and time.** A chosen entry is kept only if its fit repeats with the reference, its
+instrumental estimate (the partner run's columns) agreeing with least squares; an entry of the
+rotor speeds' history also only if, added to every state entry of the library at once, it still
+passes the selection's test (:func:`~nanosysid.discover.select.check_reference`). A residual
+that stays above the noise after every state entry and the generic terms is **not a function of
+the state** when it does not repeat between runs of one reference (a function of time); when it
+does repeat, it follows the reference through the state or the input history, which no test
+here tells apart, and it is **unnamed** (:func:`~nanosysid.discover.verdicts.stateless`).
 
 **The numbers of a finding.** Its coefficients are fitted on every block, in the true body's
 units: where the inertia correction is chosen, every other torque column is scaled by
@@ -96,9 +96,9 @@ from nanosysid.discover.select import check_reference, prune, select
 from nanosysid.discover.sources import reference_pairs
 from nanosysid.discover.verdicts import coefficients, named, stateless, unnamed
 from nanosysid.effects import CHANNELS, LIBRARY
-from nanosysid.metrics import QUANTITIES
 from nanosysid.errors import ConfigError, DataError, PredictionError
 from nanosysid.identify import identify
+from nanosysid.metrics import QUANTITIES
 from nanosysid.models.physics import PhysicsStep
 from nanosysid.rollout import StepPredictor
 from nanosysid.vehicle import Vehicle
