@@ -38,7 +38,8 @@ def main(cfg: DictConfig) -> dict:
                          calibration=calibration[0] if calibration else None,
                          sim=campaign.short_flights_config(float(c.duration), SimConfig.from_mapping(plain(cfg.sim.flight))),
                          sync=SyncConfig.from_mapping(plain(cfg.preprocess.sync)),
-                         inertia_z_range=tuple(cfg.identify.inertia_z_range))
+                         inertia_z_range=tuple(cfg.identify.inertia_z_range),
+                         velocity=str(cfg.discover.velocity))
     rows = campaign.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
     counts = {k: int(v) for k, v in (plain(c.get("families")) or {}).items() if int(v)}
     unknown = set(counts) - set(campaign.FAMILIES)

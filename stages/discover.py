@@ -40,7 +40,8 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
                           block=float(dc.block), folds=int(dc.folds), sindy=bool(dc.sindy),
                           delays=tuple(delays), window=int(dc.savgol_window), order=int(dc.savgol_order), horizon=H,
                           oracle=oracle, limit=limit, inertia_z_range=tuple(cfg.identify.inertia_z_range),
-                          batch_size=int(cfg.eval.batch_size), flights_out=bool(dc.flights_out), progress=True)
+                          batch_size=int(cfg.eval.batch_size), flights_out=bool(dc.flights_out), progress=True,
+                          velocity=str(dc.velocity))
     step = result.model.step
     effects = {name: {"params": list(entry(name).params), "coefficients": coef}
                for name, coef in step.coefficients().items()}

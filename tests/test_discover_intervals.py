@@ -67,3 +67,51 @@ def test_a_coefficient_held_fixed_is_the_fit_of_what_it_leaves():
     th = np.linalg.lstsq(A[np.repeat(~test, 6)], rest[~test].reshape(-1), rcond=None)[0]
     left = rest[test] - (X[test][..., [0, 2]] * weights[None, :, None]) @ th
     np.testing.assert_allclose(sse[np.arange(20) % folds == k].sum(), (left ** 2).sum(), rtol=1e-9)
+
+
+def test_the_velocity_from_position_is_the_positions_derivative_free_of_the_estimates_drift():
+    # a cubic position: its derivative is exact under a Savitzky-Golay filter of order 3, edges
+    # included; the recorded velocity carries a slow 0.1 m/s error the result must not keep
+    from nanosysid.dataio import Flight
+    from nanosysid.discover.fit import with_position_velocity
+
+    t = np.arange(500) * 0.01
+    c = np.array([[0.3, -0.2, 1.0], [0.5, 0.1, -0.4], [-0.05, 0.02, 0.01]])  # t, t², t³ per axis
+    y = np.zeros((len(t), 13))
+    y[:, 0:3] = 1.0 + t[:, None] * c[0] + t[:, None] ** 2 * c[1] + t[:, None] ** 3 * c[2]
+    truth = c[0] + 2 * t[:, None] * c[1] + 3 * t[:, None] ** 2 * c[2]
+    y[:, 3:6] = truth + 0.1 * np.sin(2 * np.pi * 0.3 * t)[:, None]
+    y[:, 9] = 1.0
+    f = Flight("square_20250601_run1", t, np.full((len(t), 4), 2000.0), y, {})
+    g = with_position_velocity(f, 15, 3)
+    np.testing.assert_allclose(g.y[:, 3:6], truth, atol=1e-9)
+    np.testing.assert_array_equal(g.y[:, [0, 1, 2, *range(6, 13)]], y[:, [0, 1, 2, *range(6, 13)]])
+    assert np.abs(f.y[:, 3:6] - truth).max() > 0.09  # the flight given is left as it was
+
+
+def test_the_noise_spectrum_is_white_noise_through_the_filters_and_the_band_is_what_stands_above_it():
+    from scipy.signal import savgol_filter
+
+    from nanosysid.discover.fit import noise_spectrum
+    from nanosysid.discover.verdicts import _band
+
+    rng = np.random.default_rng(0)
+    dt, n, L = 0.01, 256, 200
+    # white noise through the derivative filter (a gyro's torque), scaled to unit variance
+    x = savgol_filter(rng.normal(size=(400, L)), 15, 3, deriv=1, delta=dt, axis=1)[:, 20:-20]
+    x /= x.std()
+    w = np.hanning(x.shape[1])
+    periodogram = np.mean(np.abs(np.fft.rfft((x - x.mean(axis=1, keepdims=True)) * w, n=n, axis=1)) ** 2, axis=0)
+    expected = noise_spectrum(np.array([0.0, 1.0]), 15, 3, dt, n) * (w ** 2).sum()
+    band = slice(3, 100)  # away from DC (the mean removed) and the derivative's notch at Nyquist
+    np.testing.assert_allclose(periodogram[band], expected[band], rtol=0.25, atol=0.02 * expected.max())
+    # a 0.5 Hz torque at a third of the noise's power: its band is where it lies (within the 2 s
+    # blocks' resolution, 0.39 Hz bins and a Hann window's main lobe), while the noise alone puts
+    # the middle half of the power between about 7 and 16 Hz
+    t = np.arange(40 * 200) * dt
+    blocks = np.repeat(np.arange(40), 200)
+    noise = savgol_filter(rng.normal(size=len(t)), 15, 3, deriv=1, delta=dt)
+    noise /= noise.std()
+    lo, hi = (float(v) for v in _band(noise + 0.8 * np.sin(2 * np.pi * 0.5 * t), blocks, dt,
+                                       np.array([0.0, 1.0]), 15, 3)[:-3].split("-"))
+    assert lo <= 0.5 <= hi <= 1.6, (lo, hi)

@@ -208,7 +208,8 @@ class Setup:
     """What every world of a campaign shares: the nominal vehicle (the simulated body and
     discovery's nominal model), the split of the trajectories (the configuration's ``split``),
     the yaw calibration flight of the identify step (no part of discovery's data), the
-    simulator's settings and the sync stage's (the motor lag's estimate)."""
+    simulator's settings and the sync stage's (the motor lag's estimate), and the velocity
+    discovery's regressors read (:func:`nanosysid.discover.run`'s ``velocity``)."""
 
     vehicle: Vehicle = field(default_factory=Vehicle)
     train: tuple[str, ...] = ("square", "random", "chirp")
@@ -217,6 +218,7 @@ class Setup:
     sim: SimConfig = field(default_factory=short_flights_config)
     sync: SyncConfig = field(default_factory=SyncConfig)
     inertia_z_range: tuple[float, float] | None = None
+    velocity: str = "position"
 
     @property
     def trajectories(self) -> tuple[str, ...]:
@@ -277,7 +279,7 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
                         compile=setup.sim.compile)
     try:
         r = discover.run(train, test, vehicle=nominal, oracle=oracle, sindy=True, analysis=False, horizon=horizon,
-                         inertia_z_range=setup.inertia_z_range, diverged_ok=True)
+                         inertia_z_range=setup.inertia_z_range, diverged_ok=True, velocity=setup.velocity)
     except PredictionError as e:  # a rollout other than the augmented model's diverges: the world fails
         return {"world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
                 "user_strength": world.user_strength, "error": str(e), "identify": ident, "family": world.family}

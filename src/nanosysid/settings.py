@@ -118,7 +118,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     # discovery (its oracle is a model's block)
     ("discover.folds", TWO_OR_MORE), ("discover.block", POSITIVE), ("discover.alpha", SHARE), ("discover.share", SHARE),
     ("discover.sindy", FLAG), ("discover.flights_out", FLAG), ("discover.out_dir", TEXT), ("discover.report_dir", TEXT),
-    ("discover.identified", TEXT_OR_NULL),
+    ("discover.identified", TEXT_OR_NULL), ("discover.velocity", ("estimate", "position")),
     ("discover.savgol_window", COUNT), ("discover.savgol_order", NONNEG_COUNT),
     ("discover.delay_step", POSITIVE), ("discover.delay_max", NONNEG),
     ("discover.oracle.dt", POSITIVE), ("discover.oracle.substeps", COUNT), ("discover.oracle.effects.*", NONNEG),

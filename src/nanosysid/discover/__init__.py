@@ -55,6 +55,9 @@ that stays above the noise after every state entry and the generic terms is **no
 the state** when it does not repeat between runs of one reference (a function of time); when it
 does repeat, it follows the reference through the state or the input history, which no test
 here tells apart, and it is **unnamed** (:func:`~nanosysid.discover.verdicts.stateless`).
+An onboard velocity estimate's slow drift, through the drag columns, makes such a residual of
+time too; ``velocity="position"`` has the regressors read the recorded position's derivative
+instead (a motion-capture position has no such drift).
 
 **The numbers of a finding.** Its coefficients are fitted on every block, in the true body's
 units: where the inertia correction is chosen, every other torque column is scaled by
@@ -88,6 +91,7 @@ from nanosysid import protocol
 from nanosysid.dataio import Flight
 from nanosysid.discover.analysis import disagreement
 from nanosysid.discover.assemble import assemble, sindy_baseline
+from nanosysid.discover.fit import VELOCITIES, with_position_velocity
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.discover.records import STATELESS, UNSTABLE, VERDICTS, Candidate, DiscoveryResult, Finding, Pick
 from nanosysid.discover.search import Search
@@ -133,7 +137,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
         oracle: Any = None, limit: Any = None, analysis: bool = True, sindy: bool = False,
         inertia_z_range: tuple[float, float] | None = None, batch_size: int = 8192, flights_out: bool = False,
-        hold_k_m: bool = False, progress: bool = False, diverged_ok: bool = False) -> DiscoveryResult:
+        hold_k_m: bool = False, progress: bool = False, diverged_ok: bool = False,
+        velocity: str = "position") -> DiscoveryResult:
     """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
 
     Args:
@@ -170,11 +175,20 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             return the verdicts with infinite scores and the reason in ``diverged`` instead of
             raising :class:`~nanosysid.errors.PredictionError` (a campaign judges the verdicts
             of every world).
+        velocity: The body velocity every regressor reads on ``train_flights``: the recorded one
+            (``estimate``) or the derivative of the recorded position (``position``; with a
+            motion-capture position, free of an onboard estimate's slow drift:
+            :func:`~nanosysid.discover.fit.with_position_velocity`). The test flights are scored
+            as recorded either way.
     """
     if len(train_flights) < 1:
         raise DataError("discover needs at least 1 training flight")
     _check_settings(folds=folds, block=block, alpha=alpha, floor=floor, share=share, window=window, order=order)
+    if velocity not in VELOCITIES:
+        raise ConfigError(f"discover: velocity must be one of {', '.join(VELOCITIES)}, got {velocity!r}")
     _check_excitation(train_flights)
+    if velocity == "position":
+        train_flights = [with_position_velocity(f, window, order) for f in train_flights]
     v = vehicle
     if v is None:
         thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)

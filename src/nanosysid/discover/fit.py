@@ -17,6 +17,7 @@ that a fit of any set of columns on any set of blocks is one small solve.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Sequence
 
@@ -30,8 +31,9 @@ from nanosysid.identify import body_torque
 from nanosysid.rollout import advance_inputs
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "noise_floor", "Grams", "EDGE",
-           "COLUMN_ENTRIES"]
+__all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "noise_floor", "noise_parts",
+           "noise_spectrum", "Grams", "EDGE",
+           "COLUMN_ENTRIES", "VELOCITIES", "with_position_velocity"]
 
 EDGE = 10  # samples dropped at each end of a flight: the smoothing filter's edge effects
 
@@ -39,6 +41,28 @@ EDGE = 10  # samples dropped at each end of a flight: the smoothing filter's edg
 # with columns (input_delay is a search over the data, not a column)
 COLUMN_ENTRIES = (effects.NOMINAL.name,) + tuple(n for n, e in effects.LIBRARY.items() if e.columns is not None)
 _COLUMN_ENDS = np.cumsum([effects.entry(n).n_columns for n in COLUMN_ENTRIES])
+
+
+# where the regressors' velocity comes from: the recorded velocity (an onboard estimate), or the
+# derivative of the recorded position (motion capture's, where the flights hold it)
+VELOCITIES = ("estimate", "position")
+
+
+def with_position_velocity(flight: Flight, window: int, order: int) -> Flight:
+    """``flight`` with its velocity ``y[:, 3:6]`` replaced by the Savitzky-Golay derivative of its
+    position (m/s, the same ``window`` and ``order`` as every other derivative here).
+
+    An onboard velocity estimate carries a slow error (its correlation time is seconds, so
+    neither the smoothing nor the blocks average it out); through every drag column it leaves a
+    torque and force residual that is a function of time, not of the state. A motion-capture
+    position differentiated has white noise only.
+    """
+    from scipy.signal import savgol_filter
+
+    dt = float(np.median(np.diff(flight.t)))
+    y = flight.y.copy()
+    y[:, 3:6] = savgol_filter(flight.y[:, 0:3], window, order, deriv=1, delta=dt, axis=0)
+    return dataclasses.replace(flight, y=y)
 
 
 def measured_wrench(flight: Flight, vehicle: Vehicle, window: int, order: int) -> np.ndarray:
@@ -65,14 +89,11 @@ def _white_std(a: np.ndarray) -> np.ndarray:
     return np.median(np.abs(d2), axis=0) / 0.6745 / np.sqrt(6.0)
 
 
-def noise_floor(flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int) -> np.ndarray:
-    """Std of the measurement noise in each channel of the smoothed residual, ``(6,)`` in N and N m.
-
-    The white noise of the measured force (accelerometer), of the gyro and of the nominal wrench
-    (the recorded rotor speeds' noise through the rotor model), each estimated from the data
-    themselves and carried through the Savitzky-Golay smoothing (force, nominal wrench) and
-    derivative (torque) filters.
-    """
+def noise_parts(flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int) -> np.ndarray:
+    """Std of the measurement noise in each channel of the smoothed residual, ``(2, 6)`` in N and
+    N m: the part through the Savitzky-Golay smoothing (the accelerometer's, the nominal wrench's
+    from the recorded rotor speeds) and the part through its derivative (the gyro's), each
+    estimated from the data themselves."""
     from scipy.signal import savgol_coeffs
 
     dt = float(np.median(np.diff(flights[0].t)))
@@ -84,8 +105,31 @@ def noise_floor(flights: Sequence[Flight], vehicle: Vehicle, window: int, order:
         gyro.append(_white_std(f.y[:, 10:13]))
         nom.append(_white_std(nominal_wrench(f.u, vehicle)))
     acc, gyro, nom = (np.median(a, axis=0) for a in (acc, gyro, nom))
-    measured = np.concatenate([vehicle.mass * acc * smooth, np.asarray(vehicle.inertia) * gyro * deriv])
-    return np.sqrt(measured ** 2 + (nom * smooth) ** 2)
+    smoothed = np.hypot(np.concatenate([vehicle.mass * acc, np.zeros(3)]), nom) * smooth
+    differentiated = np.concatenate([np.zeros(3), np.asarray(vehicle.inertia) * gyro * deriv])
+    return np.stack([smoothed, differentiated])
+
+
+def noise_floor(flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int) -> np.ndarray:
+    """Std of the measurement noise in each channel of the smoothed residual, ``(6,)`` in N and N m:
+    both parts of :func:`noise_parts` together."""
+    return np.hypot(*noise_parts(flights, vehicle, window, order))
+
+
+def noise_spectrum(parts: np.ndarray, window: int, order: int, dt: float, n: int) -> np.ndarray:
+    """The power spectrum ``(n // 2 + 1,)`` of unit-variance noise made of ``parts`` (the
+    variance shares through the Savitzky-Golay smoothing and through its derivative, summing to
+    1) on ``np.fft.rfftfreq(n, dt)``: white noise carried through each filter, whose power is
+    ``|H(f)|² / Σh²`` per unit of variance (a white noise's is 1 in every bin; a windowed
+    segment's expected ``|rfft|²`` is this times the sum of the squared window)."""
+    from scipy.signal import savgol_coeffs
+
+    out = np.zeros(n // 2 + 1)
+    for share, deriv in zip(parts, (0, 1)):
+        h = savgol_coeffs(window, order, deriv=deriv, delta=dt)
+        gain = np.abs(np.fft.rfft(h, n=n)) ** 2 / (h ** 2).sum()
+        out += share * gain
+    return out
 
 
 @dataclass

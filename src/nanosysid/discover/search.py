@@ -11,7 +11,7 @@ import numpy as np
 from nanosysid.dataio import Flight
 from nanosysid.discover import generic
 from nanosysid.discover.fit import (COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench,
-                                    noise_floor, rotor_products)
+                                    noise_parts, rotor_products)
 from nanosysid.effects import CHANNELS, DELAY, NOMINAL, entry, split_coefficients
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
@@ -31,7 +31,8 @@ class Search:
         self._parent: Search | None = None
         self._skip = -1
         self.measured = [measured_wrench(f, vehicle, window, order) for f in self.flights]
-        self.noise = noise_floor(self.flights, vehicle, window, order)
+        self.noise_parts = noise_parts(self.flights, vehicle, window, order)
+        self.noise = np.hypot(*self.noise_parts)
         self.weights = 1.0 / np.maximum(self.noise, 1e-12)
         self._data: dict[float, list[FlightData]] = {}
         self._grams: dict[float, Grams] = {}

@@ -17,7 +17,7 @@ from nanosysid.discover.sources import REPEATS, Pairs, source
 from nanosysid.discover.search import Search, channels_of, true_torque_grams
 from nanosysid.discover.select import Selection
 from nanosysid.discover.stats import half_width, jackknife, pvalue
-from nanosysid.discover.fit import COLUMN_ENTRIES
+from nanosysid.discover.fit import COLUMN_ENTRIES, noise_spectrum
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, split_coefficients
 from nanosysid.vehicle import Vehicle
 
@@ -283,7 +283,8 @@ def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, tota
             continue
         evidence = {"heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
                     "blocks_improved": int((excess > 0).sum()), "blocks": B,
-                    "band": _band(left[:, c], search.blocks, dt),
+                    "band": _band(left[:, c], search.blocks, dt,
+                                  (search.noise_parts[:, c] / search.noise[c]) ** 2, search.window, search.order),
                     "rms": float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()) / search.weights[c])}
         if pairs is not None:
             evidence["source"] = source(left[:, c], pairs, search.blocks, alpha)
@@ -296,16 +297,23 @@ def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, tota
     return out
 
 
-def _band(x: np.ndarray, blocks: np.ndarray, dt: float) -> str:
-    """The frequency band (Hz) between the quartiles of the power of ``x``, from the spectra of
-    its blocks."""
-    psd, freqs = 0.0, None
+def _band(x: np.ndarray, blocks: np.ndarray, dt: float, parts: np.ndarray, window: int, order: int) -> str:
+    """The frequency band (Hz) between the quartiles of the power of ``x`` (weighted: noise
+    floors) above the noise's, from the spectra of its blocks; ``parts``: the noise's variance
+    shares through the smoothing and through the derivative
+    (:func:`~nanosysid.discover.fit.noise_spectrum`). Where the noise leaves nothing, the band of
+    all the power."""
+    n = 256
+    total = noise = 0.0
     for b in np.unique(blocks):
         seg = x[blocks == b]
         seg = seg - seg.mean()
-        spec = np.abs(np.fft.rfft(seg * np.hanning(len(seg)), n=256)) ** 2
-        psd = psd + spec
-        freqs = np.fft.rfftfreq(256, dt)
+        w = np.hanning(len(seg))
+        total = total + np.abs(np.fft.rfft(seg * w, n=n)) ** 2
+        noise = noise + (w ** 2).sum()
+    freqs = np.fft.rfftfreq(n, dt)
+    above = np.maximum(total - noise * noise_spectrum(parts, window, order, dt, n), 0.0)
+    psd = above if above.sum() > 0 else total
     cum = np.cumsum(psd) / max(np.sum(psd), 1e-300)
     lo, hi = freqs[np.searchsorted(cum, 0.25)], freqs[min(np.searchsorted(cum, 0.75), len(freqs) - 1)]
     return f"{lo:.2g}-{hi:.2g} Hz"
