@@ -14,7 +14,7 @@ export PYTHONHASHSEED := 0
 # the numerical code paths every stage pins (src/nanosysid/numerics.py), for every command run here
 PINNED := $(shell PYTHONPATH=src $(PYTHON) -m nanosysid.numerics)
 
-.PHONY: venv test repro params deps bench clean-venv toolchain
+.PHONY: venv test repro readme params deps bench clean-venv toolchain toolchain-check
 
 venv: $(STAMP)
 
@@ -24,24 +24,30 @@ $(STAMP): requirements.txt constraints.txt pyproject.toml
 	$(PIP) --no-deps -e .
 	@touch $@
 
-# The ARM toolchain and QEMU for the mcu stages: installed through apt when missing and this
-# is root (without --no-install-recommends they take 3 GB); otherwise the mcu stages and
-# their tests say what to install.
+# The ARM toolchain and QEMU for the mcu stages, installed through apt (as root) only by
+# `make toolchain` (without --no-install-recommends they take 3 GB). Without them the mcu
+# tests are skipped and the mcu stages fail with what to install; `export.mcu.enabled=false`
+# runs them without the toolchain, recording no microcontroller figures.
 ARM_PACKAGES := gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm gcc libc6-dev
+HAVE_TOOLCHAIN := command -v arm-none-eabi-gcc >/dev/null && command -v qemu-system-arm >/dev/null && command -v gcc >/dev/null
 toolchain:
-	@if command -v arm-none-eabi-gcc >/dev/null && command -v qemu-system-arm >/dev/null && command -v gcc >/dev/null; then \
+	@if $(HAVE_TOOLCHAIN); then \
 	    :; \
 	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
 	    echo "installing $(ARM_PACKAGES)"; \
 	    apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends $(ARM_PACKAGES) >/dev/null; \
 	else \
-	    echo "note: the mcu stages need: apt-get install --no-install-recommends $(ARM_PACKAGES) (as root)"; \
+	    echo "make toolchain: as root, apt-get install --no-install-recommends $(ARM_PACKAGES)"; exit 1; \
 	fi
+
+toolchain-check:
+	@$(HAVE_TOOLCHAIN) || echo "note: no ARM toolchain or QEMU: the mcu tests are skipped and the mcu stages need \
+	\`make toolchain\` (as root) or export.mcu.enabled=false"
 
 # two workers, one test file each at a time: a file's module fixtures (the tiny pipeline, the DVC
 # repository) are built once, and the DVC tests overlap the rest of the suite
 TEST_WORKERS ?= 2
-test: $(STAMP) toolchain
+test: $(STAMP) toolchain-check
 	env $(PINNED) $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # DVC composes params.yaml from conf/ only on `dvc exp run`; compose it here too so an
@@ -54,11 +60,15 @@ deps: $(STAMP)
 	$(BIN)/python -m nanosysid.depgraph write
 
 # every stage of dvc.yaml, REPRO_JOBS at a time where the DAG allows (src/nanosysid/repro.py: the
-# same outputs and dvc.lock as `dvc repro`), each stage's time into reports/repro.json, and from
-# there into the README's run times
+# same outputs and dvc.lock as `dvc repro`), each stage's time into reports/repro.last.json (no
+# tracked file changes); `make readme` records those times (reports/repro.json) and regenerates
+# the README's sections from the recorded outputs
 REPRO_JOBS ?= 2
-repro: params toolchain
-	env $(PINNED) $(BIN)/python -m nanosysid.repro --jobs $(REPRO_JOBS) --out reports/repro.json
+repro: params toolchain-check
+	env $(PINNED) $(BIN)/python -m nanosysid.repro --jobs $(REPRO_JOBS) --out reports/repro.last.json
+
+readme: $(STAMP)
+	@if [ -f reports/repro.last.json ]; then cp reports/repro.last.json reports/repro.json; fi
 	$(BIN)/python -m nanosysid.report.readme --sections results rig physics bench
 
 # every benchmark's figures into reports/bench.json, and from there into the README;

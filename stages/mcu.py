@@ -21,10 +21,13 @@ log = logging.getLogger("nanosysid.mcu")
 def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     """Build the exported C into firmware, run it on QEMU's STM32F405, compare it with PyTorch
     float32 and count its cost; firmware in ``<export.out_dir>/<name>/mcu/``, results in
-    ``<paths.export>/<name>.json``."""
+    ``<paths.export>/<name>.json``. With ``export.mcu.enabled`` false, both say so and hold no
+    figure (no toolchain needed)."""
+    mc = cfg.export.mcu
+    if not mc.enabled:
+        return _skipped(cfg, name)
     mcu.require_toolchain()
     ex = exportable_of(cfg, name)
-    mc = cfg.export.mcu
     src = export_dir(cfg, name)
     for f in ("nsi_model.h", "model.c"):
         if not (src / f).exists():
@@ -69,6 +72,21 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
         f.write_text(json_text(result))
     log.info("mcu %s: %.0f instructions per step (%.3f ms at 168 MHz), flash %.1f kB, RAM %.1f kB, rel. diff %.2g",
              name, run.instructions_per_step, t_est_ms, result["flash_kb"], result["ram_kb"], rel)
+    return result
+
+
+SKIPPED = "export.mcu.enabled is false: not built or run on the microcontroller"
+
+
+def _skipped(cfg: DictConfig, name: str) -> dict[str, Any]:
+    """The stage's outputs where the microcontroller is switched off: a note in the firmware
+    folder, and a result with the model's name and why it has no figures."""
+    result = {"model": name, "skipped": SKIPPED}
+    with atomic_dir(Path(cfg.export.out_dir) / name / "mcu") as tmp:
+        (tmp / "SKIPPED.txt").write_text(SKIPPED + "\n")
+    with atomic_file(Path(cfg.paths.export) / f"{name}.json") as f:
+        f.write_text(json_text(result))
+    log.info("mcu %s: %s", name, SKIPPED)
     return result
 
 

@@ -115,3 +115,18 @@ def test_the_noise_spectrum_is_white_noise_through_the_filters_and_the_band_is_w
     lo, hi = (float(v) for v in _band(noise + 0.8 * np.sin(2 * np.pi * 0.5 * t), blocks, dt,
                                        np.array([0.0, 1.0]), 15, 3)[:-3].split("-"))
     assert lo <= 0.5 <= hi <= 1.6, (lo, hi)
+
+
+def test_the_models_name_says_terms_only_where_it_applies_some():
+    from nanosysid.discover.records import DiscoveryResult, Finding
+
+    def result(*findings):
+        return DiscoveryResult(list(findings), None, None, None, None, None, [], 0.01, 0.25, np.ones(6))
+
+    drag = Finding("named", "induced_drag", ("F_x", "F_y", "F_z"), {}, {})
+    fitted = Finding("unnamed", None, ("F_y",), {}, {})
+    left_out = Finding("unnamed", None, ("F_y",), {}, {"added": False})
+    time = Finding("not a function of the state", None, ("tau_z",), {}, {})
+    assert result(drag, fitted, time).name == "physics+induced_drag+terms"
+    assert result(drag, left_out, time).name == "physics+induced_drag"
+    assert result(time).name == "physics"

@@ -303,6 +303,20 @@ def test_export_and_mcu_stages(tiny, model):
     assert (tiny / "models" / model / "mcu" / "firmware.elf").exists()
 
 
+def test_the_mcu_stage_switched_off_needs_no_toolchain_and_records_no_figure(tiny, monkeypatch):
+    import shutil
+
+    monkeypatch.setattr(shutil, "which", lambda tool: None)  # no compiler, no QEMU on this machine
+    assert run(mcu, tiny, "export.mcu.enabled=false", f"export.out_dir={tiny / 'mcu-off'}",
+               f"paths.export={tiny / 'export-off'}", name="physics") == 0
+    result = json.loads((tiny / "export-off" / "physics.json").read_text())
+    assert result["model"] == "physics" and "enabled is false" in result["skipped"]
+    assert "instructions" not in result
+    assert (tiny / "mcu-off" / "physics" / "mcu" / "SKIPPED.txt").exists()
+    assert run(mcu, tiny, f"export.out_dir={tiny / 'mcu-off'}", f"paths.export={tiny / 'export-off'}",
+               name="physics") != 0  # switched on, the missing toolchain is the stage's error
+
+
 def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     tiny = evaluated(tiny)
     model = json.loads((tiny / "discovered" / "model.json").read_text())

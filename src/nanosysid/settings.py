@@ -114,6 +114,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("visualize.out_dir", TEXT), ("visualize.stride", COUNT),
     ("export.models.*", TEXT), ("export.out_dir", TEXT),
     ("export.onnx_samples", COUNT), ("export.onnx_tolerance", POSITIVE), ("export.mcu.flight", TEXT_OR_NULL),
+    ("export.mcu.enabled", FLAG),
     ("export.mcu.start", NONNEG_COUNT), ("export.mcu.steps", COUNT), ("export.mcu.tolerance", POSITIVE),
     # discovery (its oracle is a model's block)
     ("discover.folds", TWO_OR_MORE), ("discover.block", POSITIVE), ("discover.alpha", SHARE), ("discover.share", SHARE),

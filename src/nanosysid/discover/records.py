@@ -179,7 +179,11 @@ class DiscoveryResult:
 
     @property
     def name(self) -> str:
-        parts = [f.entry for f in self.findings if f.entry] + (["terms"] if self.unnamed else [])
+        """``physics+<entries>``: every library entry the augmented model applies, and ``terms``
+        where it applies generic terms (an unnamed finding's are left out where they would make
+        the training rollouts diverge, or where it is no fit of the state)."""
+        terms = [f for f in self.unnamed if f.evidence.get("added", True)]
+        parts = [f.entry for f in self.findings if f.entry] + (["terms"] if terms else [])
         return "+".join(["physics"] + parts)
 
     @property
