@@ -8,7 +8,8 @@ import numpy as np
 from omegaconf import DictConfig
 
 from nanosysid import protocol
-from nanosysid.dataio import atomic_file
+from nanosysid.dataio import atomic_file, json_text
+from nanosysid.metrics import QUANTITIES
 from nanosysid.report import tables
 from nanosysid.report.paper import PAPER_STATS
 from nanosysid.report.stats import STAT_LABELS, trajectory_stats
@@ -21,7 +22,7 @@ log = logging.getLogger("nanosysid.report")
 
 FIGURES = {
     "mae_horizon": "MAE against the prediction horizon on the test flights, one line per model "
-                   "(log scale; the oracle, dashed, is the physical limit).",
+                   "(log scale{oracle}).",
     "predictions": "{h}-step-ahead predictions against the ground truth on {flight}, {a:g} to {b:g} s "
                    "(the physics model holds ω constant, so its ω line is the naive one; models not in "
                    "report.lineplot.models are left out).",
@@ -31,7 +32,8 @@ FIGURES = {
 
 def main(cfg: DictConfig) -> None:
     """``report.markdown`` and ``report.latex`` (results and cost tables), the figures in
-    ``report.figures``, and the MAE curves of every model in ``report.plots`` (CSV)."""
+    ``report.figures``, the MAE curves of every model in ``report.plots`` (CSV), and every model's
+    SimErr per quantity in ``report.summary`` (JSON, the metrics experiments are compared on)."""
     rc = cfg.report
     names = list(cfg.models)
     horizons = [h for h in cfg.eval.table_horizons if h <= int(cfg.eval.horizon)]
@@ -63,13 +65,17 @@ def main(cfg: DictConfig) -> None:
 
     rel = Path(rc.markdown).parent
     captions = [(_relative(fig_dir / f"{key}.png", rel),
-                 text.format(h=H, flight=flight.name, a=a, b=b)) for key, text in FIGURES.items()]
+                 text.format(h=H, flight=flight.name, a=a, b=b,
+                             oracle="; the oracle, dashed, is the physical limit" if "oracle" in rows else ""))
+                for key, text in FIGURES.items()]
     with atomic_file(Path(rc.markdown)) as tmp:
         tmp.write_text(tables.benchmark_markdown(rows, costs, horizons, captions))
     with atomic_file(Path(rc.latex)) as tmp:
         tmp.write_text(tables.results_table_tex(rows, horizons) + "\n" + tables.cost_table_tex(costs))
     with atomic_file(Path(rc.plots)) as tmp:
         tmp.write_text(tables.mae_csv(rows))
+    with atomic_file(Path(rc.summary)) as tmp:
+        tmp.write_text(json_text({"simerr": {name: {q: s.simerr[q] for q in QUANTITIES} for name, s in rows.items()}}))
     log.info("report: %d models, figures in %s", len(rows), fig_dir)
 
 

@@ -2,6 +2,7 @@
 outputs and the run cache travel through a remote."""
 
 import os
+import shlex
 import shutil
 import subprocess
 import sys
@@ -59,7 +60,7 @@ def dvc_repo(tmp_path_factory):
                DVC_NO_ANALYTICS="1", PYTHONHASHSEED="0")
     repo = DvcRepo(tmp_path_factory.mktemp("dvc") / "repo", env)
     out = repo.sh("dvc", "exp", "run", *SMALL)
-    assert "Running stage 'evaluate@physics'" in out and "Running stage 'campaign'" in out
+    assert "Running stage 'evaluate@physics'" in out and "Running stage 'campaign@sim'" in out
     return repo
 
 
@@ -67,11 +68,11 @@ def dvc_repo(tmp_path_factory):
 # every model's results (the report, the comparison with the paper, the recordings)
 EXPERIMENTS = {
     # a physics setting: the model's evaluation, its export and MCU run
-    "substeps": ("models.physics.substeps=2",
-                 ("evaluate@physics", "export@physics", "mcu@physics", "report", "compare", "visualize")),
+    "substeps": ("models.physics.substeps=4",
+                 ("evaluate@physics", "export@physics", "mcu@physics", "report", "compare@sim", "visualize")),
     # a learned model's setting: that model alone is retrained, re-evaluated, exported and run
     "hidden": ("models.lstm.network.hidden=40",
-               ("train@lstm", "evaluate@lstm", "export@lstm", "mcu@lstm", "report", "compare", "visualize")),
+               ("train@lstm", "evaluate@lstm", "export@lstm", "mcu@lstm", "report", "compare@sim", "visualize")),
 }
 
 
@@ -83,7 +84,7 @@ def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_
     sh("dvc", "exp", "run", "--run-all", "-j", "2")
     status = sh("dvc", "queue", "status")
     assert status.count("Success") == 2 and "Failed" not in status, status
-    untouched = ("simulate", "extract", "sync", "filter", "split", "identify", "discover", "campaign",
+    untouched = ("simulate", "extract", "sync", "filter", "split", "identify", "discover", "campaign@sim",
                  "train@residual", "evaluate@naive", "evaluate@oracle", "evaluate@residual")
     for name, (_, reruns) in EXPERIMENTS.items():
         log = sh("dvc", "queue", "logs", name)
@@ -99,6 +100,41 @@ def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_
     sh("git", "checkout", "--", "params.yaml")  # `exp run -S` left the lstm's change in the workspace
     out = sh("dvc", "exp", "run", *SMALL, "-S", EXPERIMENTS["substeps"][0], "-S", "launcher=slurm")
     assert "Stage 'evaluate@physics' is cached - skipping run" in out and "Running stage" not in out, out
+    # the README's comparison of experiments: one quantity's SimErr per model, a column each
+    line = next(x for x in (ROOT / "README.md").read_text().splitlines() if x.startswith("dvc exp show "))
+    table = sh(*shlex.split(line.split("#")[0]), "--csv").splitlines()
+    header = table[0].split(",")
+    shown = [c for c in header if c.startswith("simerr.") or "summary.json" in c]
+    assert sorted(shown) == sorted(f"simerr.{m}.R" for m in ("naive", "physics", "physics_full", "oracle", "residual",
+                                                              "phys_res", "lstm", "discovered")), header
+    assert len(header) <= 16 and len(table) >= 4, table  # the workspace, the base and the two experiments
+
+
+@pytest.mark.slow
+def test_a_users_own_flights_run_through_one_experiment_without_the_simulators_stages(dvc_repo, tmp_path):
+    # two flights of each of two trajectories of the user's own names, in the published schema
+    own = dvc_repo.root / "own"
+    own.mkdir()
+    for src, dst in (("chirp", "wave"), ("melon", "loop")):
+        for k in (1, 2):
+            (flight,) = (dvc_repo.root / "processed" / "flights").glob(f"{src}_*_run{k}.csv")
+            shutil.copy(flight, own / f"{dst}_20260101_run{k}.csv")
+    out = dvc_repo.sh("dvc", "exp", "run", *SMALL, "-S", "data=csv", "-S", "data.flights_dir=own",
+                      "-S", "split.train=[wave]", "-S", "split.test=[loop]", "-n", "own")
+    ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
+    assert {"split", "identify", "train@lstm", "evaluate@lstm", "discover", "report"} <= ran, ran
+    # the stages that check against the simulator's truth, and the oracle, are no part of it
+    assert not ran & {"simulate", "extract", "quality@sim", "compare@sim", "campaign@sim", "evaluate@oracle"}, ran
+    stages = dvc_repo.sh("dvc", "stage", "list", "--name-only").split()
+    assert "evaluate@oracle" not in stages and not [s for s in stages if s.endswith("@sim")], stages
+    split = yaml.safe_load((dvc_repo.root / "processed" / "split" / "split.json").read_text())
+    assert sorted(split["test"]["flights"]) == ["loop_20260101_run1", "loop_20260101_run2"], split
+    rows = [line.split("|")[1].strip() for line in
+            (dvc_repo.root / "reports" / "benchmark.md").read_text().split("## ")[1].splitlines() if line.startswith("| ")]
+    assert {"physics", "residual", "phys_res", "lstm", "discovered"} <= set(rows) and not [r for r in rows
+                                                                                       if r.startswith("oracle")]
+    dvc_repo.sh("git", "checkout", "--", "params.yaml")
+    shutil.rmtree(own)
 
 
 @pytest.mark.slow

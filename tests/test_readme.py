@@ -32,7 +32,7 @@ def test_readme_shows_the_results_the_lock_file_records():
 
 
 def test_readme_physics_section_is_the_compare_and_quality_reports_the_lock_file_records():
-    part, sources, outs = stamped(readme.PHYSICS_BEGIN, readme.PHYSICS_END, ["compare", "quality"])
+    part, sources, outs = stamped(readme.PHYSICS_BEGIN, readme.PHYSICS_END, ["compare@sim", "quality@sim"])
     assert sources == {p: outs[p] for p in ("reports/sim/stats.md", "reports/data/quality.md")}
     assert "| k_M, the paper's method |" in part and "| phys_res / physics, ours |" in part
     assert "| melon_20250601_run1 |" in part
@@ -182,3 +182,13 @@ def test_the_real_flights_section_is_left_alone_where_the_rig_pipeline_did_not_r
     assert readme.update_rig(md, paper, tmp_path / "fig.png", tmp_path / "docs" / "copy.png")
     text = md.read_text()
     assert all(w in text for w in ("RESULTS", "IDENT", "LAG", "](docs/copy.png)")) and "NO" not in text and "old" not in text
+
+
+def test_the_readmes_ablation_names_the_stages_dvc_reruns():
+    # tests/test_dvc.py runs the experiment and checks these very stages against DVC's log
+    from test_dvc import EXPERIMENTS
+
+    change, reruns = EXPERIMENTS["substeps"]
+    line = next(x for x in (ROOT / "README.md").read_text().splitlines() if x.startswith(f"dvc exp run -S {change}"))
+    claimed = line.split("reruns", 1)[1].strip().split(", ")
+    assert claimed == list(reruns), (claimed, reruns)

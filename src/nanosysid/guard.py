@@ -216,6 +216,10 @@ def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Ite
     pipeline's stages with their own params file)."""
     root = Path(root)
     layout = _declared(cfg, root / "dvc.yaml", stage) if cfg is not None else {}
+    items = [name for name in layout if name.startswith(f"{stage}@")]
+    if stage not in layout and len(items) == 1:
+        # a stage run once per item of a list whose command is the same for each (quality@sim)
+        stage = items[0]
     deps, outs = layout.get(stage, ([], []))
     others = {_resolve(o): name for name, (_, os_) in layout.items() if name != stage for o, _ in os_}
     run = _Run(stage, tuple(_resolve(d) for d, _ in deps), tuple(_resolve(o) for o, _ in outs), others,

@@ -85,6 +85,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("preprocess.topics.motors.invalid", NONNEG_COUNT),
     ("preprocess.topics.odom.velocity_frame", ("world", "body")), ("preprocess.topics.*", TEXT),
     ("data.source", TEXT), ("data.flights_dir", TEXT), ("data.rotor_delay", NONNEG_OR_NULL),
+    ("data.truth", ("sim",)),
     ("paths.export", TEXT_OR_NULL), ("paths.*", TEXT), ("split.*", TEXT),
     ("preprocess.format", ("bags", "logs")), ("preprocess.sync.position", ("mocap", "onboard")),
     ("rig.local", TEXT_OR_NULL), ("rig.manifest", TEXT), ("rig.upstream.*", TEXT),
