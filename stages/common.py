@@ -36,7 +36,9 @@ def run_stage(
     argv: Sequence[str] | None = None,
 ) -> int:
     """Parse the command line, load the config and call ``main(cfg)`` or ``main(cfg, name)``."""
-    parser = argparse.ArgumentParser(description=description)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter,
+                                     epilog=_settings_help(main, argv) if {"-h", "--help"} & set(argv) else None)
     if name_arg:
         parser.add_argument(name_arg)
     parser.add_argument("overrides", nargs="*", help="Hydra-style overrides, e.g. eval.horizon=20")
@@ -63,6 +65,29 @@ def run_stage(
         print(f"error: {os_fault(e)}", file=sys.stderr)
         return 2
     return 0
+
+
+def _settings_help(main: Callable[..., Any], argv: Sequence[str]) -> str:
+    """What ``--help`` lists after the arguments: the settings the stage reads (its ``params`` in
+    ``dvc.yaml``, each one settable as ``key=value``) and the models it may be given."""
+    import yaml
+
+    params = next((argv[i + 1] for i, a in enumerate(argv[:-1]) if a == "--params"), None)
+    spec = getattr(sys.modules.get(main.__module__), "__spec__", None)
+    stage = stage_name(spec.name if spec is not None else main.__module__, params)
+    try:
+        body = (yaml.safe_load(open("dvc.yaml")) or {}).get("stages", {}).get(stage, {})
+        keys = [str(k).replace("${key}", "<model>").replace("${item}", "<model>")
+                for k in body.get("do", body).get("params", [])]
+        models = list((yaml.safe_load(open(params or "params.yaml")) or {}).get("models", {}))
+    except OSError:
+        return "(run it in the project: its dvc.yaml and params.yaml name the settings)"
+    from nanosysid.predictors import KINDS
+
+    return "\n".join([f"settings it reads (dvc.yaml's params of `{stage}`; set any as key=value, the whole block "
+                      "is under that key in params.yaml):", *(f"  {k}" for k in keys),
+                      f"models configured: {', '.join(models)}",
+                      f"model kinds registered: {', '.join(KINDS)}"])
 
 
 _HINTS = {

@@ -1,5 +1,6 @@
 """Config: params.yaml is the composition of conf/, and every config group composes."""
 
+import os
 import re
 import shutil
 from pathlib import Path
@@ -279,3 +280,39 @@ def test_the_old_name_of_the_preprocess_group_is_accepted_for_a_release_with_a_w
     # a value is not renamed, nor a key that only contains the old name
     assert config.renamed(["data.source=recording", "sim.recording_rate=1"]) == ["data.source=recording",
                                                                                  "sim.recording_rate=1"]
+
+
+def test_the_command_line_runs_a_stage_of_the_project_from_any_directory(tmp_path):
+    import subprocess
+    import sys
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "nanosysid.cli", *args], cwd=tmp_path, capture_output=True,
+                              text=True, env={**os.environ, "PYTHONPATH": str(ROOT / "src")})
+
+    top = cli("--help")
+    assert top.returncode == 0 and "evaluate" in top.stdout and "discover" in top.stdout, top
+    evaluate = cli("evaluate", "--help")
+    assert evaluate.returncode == 0, evaluate.stderr
+    assert "models.<model>" in evaluate.stdout and "eval" in evaluate.stdout.split("settings it reads")[1]
+    assert "lstm" in evaluate.stdout and "model kinds registered" in evaluate.stdout
+    wrong = cli("evalute")
+    assert wrong.returncode == 2 and "no stage 'evalute'" in wrong.stderr and "evaluate" in wrong.stderr
+    # a setting out of its rules is the stage's one-line error, not a traceback, wherever it is run from
+    bad = cli("split", "eval.horizon=-3")
+    assert bad.returncode == 2 and "Traceback" not in bad.stderr and "eval.horizon" in bad.stderr, bad.stderr
+
+
+def test_a_physics_model_says_whose_k_f_and_k_m_it_has(tmp_path, caplog):
+    from nanosysid.identify import Fit, write_identified
+    from nanosysid.predictors import predictor
+
+    fit = Fit(coef=3.5e-8, stderr=0.0, r2=1.0, intercept=0.0, n=1)
+    write_identified(tmp_path / "params.json", fit, dataclasses.replace(fit, coef=6.5e-11), [])
+    with caplog.at_level("INFO", logger="nanosysid.predictors"):
+        nominal = predictor("physics")
+        identified = predictor("physics", identified=str(tmp_path / "params.json"))
+    said = [r.getMessage() for r in caplog.records]
+    assert "not identified" in said[0] and "3.72e-08" in said[0]  # the paper's vehicle
+    assert str(tmp_path / "params.json") in said[1] and "3.5e-08" in said[1] and "6.5e-11" in said[1]
+    assert identified.step.vehicle.k_f == 3.5e-8 and nominal.step.vehicle.k_f == Vehicle().k_f

@@ -14,6 +14,7 @@ Example::
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -26,6 +27,8 @@ from nanosysid.models.learned import LearnedPredictor, load_checkpoint
 from nanosysid.models.physics import PhysicsStep, naive_predict
 from nanosysid.rollout import StepPredictor
 from nanosysid.vehicle import Vehicle
+
+log = logging.getLogger("nanosysid.predictors")
 
 __all__ = ["ModelKind", "KINDS", "predictor", "build_from_options", "step_cost", "exportable"]
 
@@ -65,6 +68,10 @@ def _naive(**options: Any) -> Predictor:
 def _physics(*, angular_dynamics: bool, name: str) -> Callable[..., Predictor]:
     def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1, identified: str | None = None) -> Predictor:
         v = identified_vehicle(_vehicle(vehicle), identified)
+        # a user's row differs from the pipeline's where this differs: say which k_F and k_M it is
+        log.info("%s: k_F %.4g, k_M %.4g, %s", name, v.k_f, v.k_m,
+                 f"identified ({identified})" if identified is not None
+                 else "the vehicle's own, not identified (give identified=<the identify stage's params.json>)")
         step = PhysicsStep(v, dt=dt, substeps=substeps, angular_dynamics=angular_dynamics)
         return StepPredictor(step, name=name)
 
@@ -126,7 +133,9 @@ def predictor(kind: str, **options: Any) -> Predictor:
 
     Options are the model's config keys (for the physics models: ``vehicle``, a mapping or
     :class:`~nanosysid.vehicle.Vehicle`; ``dt``; ``substeps``; ``identified``, the path of an
-    ``identify`` result whose k_F and k_M replace the vehicle's).
+    ``identify`` result whose k_F and k_M replace the vehicle's). Without ``identified`` a physics
+    model has the vehicle's own k_F and k_M, not the ones the pipeline's rows use
+    (``models/physics/params.json``); it logs which it has.
     """
     if kind.endswith((".pt", ".ckpt")):
         return _learned(checkpoint=kind)
