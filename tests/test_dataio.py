@@ -277,3 +277,23 @@ def test_json_the_project_writes_is_strict_and_says_what_was_not_finite():
     d = json.loads(text, parse_constant=refuse)
     assert d["simerr"] == {"p": None, "v": 1.5} and d["mae"] == [None, 2.0]
     assert d["non_finite"] == ["simerr.p: inf", "mae[0]: nan"]
+
+
+def test_a_text_column_beside_the_schema_is_left_out_with_one_warning(dataset, caplog):
+    root, flights = dataset
+    path = root / "test" / "melon_d_run1.csv"
+
+    def labelled(header, rows):
+        return header + ["pilot", "note"], [r + ["anna", "gusty" if i == 3 else ""] for i, r in enumerate(rows)]
+
+    corrupt(path, labelled)
+    with caplog.at_level("WARNING", logger="nanosysid.dataio"):
+        got = read_flight_csv(path)
+    assert "pilot" not in got.extra and "note" not in got.extra
+    np.testing.assert_allclose(got.y, flights[1].y, rtol=1e-9, atol=1e-12)
+    warned = [r.getMessage() for r in caplog.records]
+    assert len(warned) == 1 and "'pilot', 'note'" in warned[0] and str(path) in warned[0], warned
+    # a column of the schema stays one clear error
+    corrupt(path, set_cell("wy", 17, "fast"))
+    with pytest.raises(DataError, match=r"column 'wy', row 17 \(line 19\): non-numeric value 'fast'"):
+        read_flight_csv(path)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import os
 import re
 import shutil
@@ -25,6 +26,8 @@ import pandas as pd
 
 from nanosysid import guard
 from nanosysid.errors import ConfigError, DataError
+
+log = logging.getLogger("nanosysid.dataio")
 
 __all__ = [
     "INPUT_COLUMNS",
@@ -259,7 +262,17 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
             f" (the published schema is: {', '.join(SCHEMA)})"
         )
     if values is None:
-        values = {col: _numbers(path, col, df[col]) for col in df.columns}
+        values, text = {}, []
+        for col in df.columns:
+            try:
+                values[col] = _numbers(path, col, df[col])
+            except DataError:
+                if col in SCHEMA:
+                    raise
+                text.append(col)  # a note or a label beside the flight: no signal any model reads
+        if text:
+            log.warning("%s: column(s) %s hold values that are not numbers; left out", path,
+                        ", ".join(repr(c) for c in text))
     n = len(next(iter(values.values()))) if values else 0
     if n < min_rows:
         raise DataError(f"{path}: {n} rows, fewer than the {min_rows} one window needs")
@@ -294,7 +307,7 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
         t=t,
         u=np.stack([values[c] for c in INPUT_COLUMNS], axis=1),
         y=np.stack([values[c] for c in OUTPUT_COLUMNS], axis=1),
-        extra={c: values[c] for c in df.columns if c not in ("t", *INPUT_COLUMNS, *OUTPUT_COLUMNS)},
+        extra={c: v for c, v in values.items() if c not in ("t", *INPUT_COLUMNS, *OUTPUT_COLUMNS)},
         source=path,
     )
 
