@@ -9,7 +9,7 @@ import torch
 from omegaconf import DictConfig
 
 from nanosysid import protocol
-from nanosysid.errors import ExportError
+from nanosysid.errors import ExportError, NotExportable
 from nanosysid.export.steps import Exportable, check_inputs, export_onnx, onnx_outputs
 from nanosysid.dataio import atomic_dir, json_text
 from nanosysid.predictors import build_from_options, exportable
@@ -30,8 +30,16 @@ def exportable_of(cfg: DictConfig, name: str) -> Exportable:
 
 def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     """ONNX of the step checked against PyTorch with onnxruntime, the generated C, and the
-    step's cost, into ``<export.out_dir>/<name>/export/`` (replaced as a whole)."""
-    ex = exportable_of(cfg, name)
+    step's cost, into ``<export.out_dir>/<name>/export/`` (replaced as a whole). A model whose
+    step needs what the exported step is not given gets ``export.json`` saying why, and no step."""
+    try:
+        ex = exportable_of(cfg, name)
+    except NotExportable as e:
+        summary = {"model": name, "exportable": False, "reason": str(e)}
+        with atomic_dir(export_dir(cfg, name)) as tmp:
+            (tmp / "export.json").write_text(json_text(summary))
+        log.warning("export %s: not exported: %s", name, e)
+        return summary
     ec = cfg.export
     bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
     inputs = check_inputs(ex, bench.test, int(ec.onnx_samples), int(cfg.seed))

@@ -1,6 +1,7 @@
 """mcu: a model's generated C built for the Cortex-M4F, run on QEMU's STM32F405, checked against
 PyTorch float32, its instructions per step, flash and RAM measured."""
 
+import json
 import logging
 from pathlib import Path
 from typing import Any
@@ -25,10 +26,13 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     figure (no toolchain needed)."""
     mc = cfg.export.mcu
     if not mc.enabled:
-        return _skipped(cfg, name)
+        return _skipped(cfg, name, SKIPPED)
+    src = export_dir(cfg, name)
+    summary = src / "export.json"
+    if summary.exists() and json.loads(summary.read_text()).get("exportable") is False:
+        return _skipped(cfg, name, f"not exported: {json.loads(summary.read_text())['reason']}")
     mcu.require_toolchain()
     ex = exportable_of(cfg, name)
-    src = export_dir(cfg, name)
     for f in ("nsi_model.h", "model.c"):
         if not (src / f).exists():
             raise ConfigError(f"{src / f}: not exported yet (run the export@{name} stage)")
@@ -78,15 +82,16 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
 SKIPPED = "export.mcu.enabled is false: not built or run on the microcontroller"
 
 
-def _skipped(cfg: DictConfig, name: str) -> dict[str, Any]:
-    """The stage's outputs where the microcontroller is switched off: a note in the firmware
-    folder, and a result with the model's name and why it has no figures."""
-    result = {"model": name, "skipped": SKIPPED}
+def _skipped(cfg: DictConfig, name: str, why: str) -> dict[str, Any]:
+    """The stage's outputs where the model is not run on the microcontroller (switched off, or
+    nothing exported): a note in the firmware folder, and a result with the model's name and
+    why it has no figures."""
+    result = {"model": name, "skipped": why}
     with atomic_dir(Path(cfg.export.out_dir) / name / "mcu") as tmp:
-        (tmp / "SKIPPED.txt").write_text(SKIPPED + "\n")
+        (tmp / "SKIPPED.txt").write_text(why + "\n")
     with atomic_file(Path(cfg.paths.export) / f"{name}.json") as f:
         f.write_text(json_text(result))
-    log.info("mcu %s: %s", name, SKIPPED)
+    log.info("mcu %s: %s", name, why)
     return result
 
 

@@ -64,6 +64,7 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"report.latex={root / 'report' / 'benchmark.tex'}",
         f"report.figures={root / 'report' / 'figures'}",
         f"report.plots={root / 'report' / 'mae.csv'}",
+        f"report.summary={root / 'report' / 'summary.json'}",
         "report.lineplot.window=[0.5,2.5]",
         f"visualize.out_dir={root / 'rerun'}",
         f"export.out_dir={root / 'models'}",
@@ -247,6 +248,12 @@ def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
     m = json.loads((tiny / "eval" / "lstm" / "scores.json").read_text())
     h10 = next(line for line in curves if line.startswith("10,lstm,")).split(",")
     assert float(h10[4]) == pytest.approx(m["mae"]["R"][9], rel=1e-6)
+    # the metrics experiments are compared on: each model's SimErr, as its evaluation has it
+    summary = json.loads((tiny / "report" / "summary.json").read_text())["simerr"]
+    for label in rows:
+        name = label.split()[0]
+        evaluated_simerr = json.loads((tiny / "eval" / name / "metrics.json").read_text())["simerr"]
+        assert summary[name] == pytest.approx(evaluated_simerr, rel=1e-12), name
 
 
 def test_compare_sets_the_dataset_beside_the_paper(tiny):
@@ -315,6 +322,25 @@ def test_the_mcu_stage_switched_off_needs_no_toolchain_and_records_no_figure(tin
     assert (tiny / "mcu-off" / "physics" / "mcu" / "SKIPPED.txt").exists()
     assert run(mcu, tiny, f"export.out_dir={tiny / 'mcu-off'}", f"paths.export={tiny / 'export-off'}",
                name="physics") != 0  # switched on, the missing toolchain is the stage's error
+
+
+def test_a_discovered_model_of_the_rotors_history_is_recorded_as_not_exported(tiny):
+    from nanosysid.discover.model import save_discovered
+    from nanosysid.vehicle import Vehicle
+
+    model = tiny / "slow" / "model.json"
+    save_discovered(model, Vehicle(), {"slow_actuation": {"coefficients": [0.0, 0.2, 0.0]},
+                                       "induced_drag": {"coefficients": [1e-6, 1e-6]}}, 0.0)
+    where = (f"models.discovered.model={model}", f"export.out_dir={tiny / 'slow-models'}",
+             f"paths.export={tiny / 'slow-export'}")
+    assert run(export, tiny, *where, name="discovered") == 0  # the pipeline goes on
+    summary = json.loads((tiny / "slow-models" / "discovered" / "export" / "export.json").read_text())
+    assert summary["exportable"] is False and "slow_actuation" in summary["reason"]
+    assert "induced_drag" not in summary["reason"]  # it names the effect that stops it, not every one
+    assert not (tiny / "slow-models" / "discovered" / "export" / "model.c").exists()
+    assert run(mcu, tiny, *where, name="discovered") == 0
+    result = json.loads((tiny / "slow-export" / "discovered.json").read_text())
+    assert "not exported" in result["skipped"] and "instructions" not in result
 
 
 def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-__all__ = ["UserError", "DataError", "ConfigError", "PredictionError", "ExportError", "ToolchainError", "JobError"]
+__all__ = ["UserError", "DataError", "ConfigError", "PredictionError", "ExportError", "NotExportable", "ToolchainError", "JobError"]
 
 
 class UserError(ValueError):
@@ -25,6 +25,11 @@ class PredictionError(UserError):
 
 class ExportError(UserError):
     """A model cannot be exported, or its export does not compute what PyTorch computes."""
+
+
+class NotExportable(ExportError):
+    """A model whose step needs what the exported step is not given (the rotor speeds' history):
+    the export stage records why, and the microcontroller stage has nothing to run."""
 
 
 class ToolchainError(UserError):

@@ -11,7 +11,8 @@ import torch
 from torch import Tensor, nn
 
 from nanosysid.discover.model import AugmentedStep, augmented_inputs
-from nanosysid.errors import ExportError
+from nanosysid.effects import entry
+from nanosysid.errors import ExportError, NotExportable
 from nanosysid.export.csource import CModel, learned_source, physics_source
 from nanosysid.models.learned import to_tilde
 from nanosysid.models.physics import PhysicsStep
@@ -123,8 +124,9 @@ def augmented_step(predict, name: str) -> Exportable:
     """The exportable step of the discovered model (an :class:`~nanosysid.discover.model.AugmentedPredictor`)."""
     p = predict.step
     if p.history:
-        raise ExportError(f"{name}: its effects {', '.join(p.effects)} read the rotor speeds' history (slow "
-                          "actuation), which the exported step is not given; export a model without them")
+        slow = [e for e in p.effects if "history" in entry(e).needs]
+        raise NotExportable(f"{name}: its effects {', '.join(slow)} read the rotor speeds' history (slow "
+                            "actuation), which the exported step is not given")
     effects = list(p.coefficients().items())
     step = AugmentedStep(p.vehicle, p.effects, p.theta.tolist(), dt=p.dt, substeps=p.substeps)
     c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=True, effects=effects)
