@@ -29,22 +29,30 @@ def _save(fig, path: Path) -> None:
     plt.close(fig)
 
 
-def mae_horizon_figure(rows: Mapping[str, Scores], path: Path, reference: Sequence[str] = ("oracle",)) -> None:
-    """Four panels, MAE of p, v, R, ω against the horizon h = 1..H, one line per model (log
-    scale: the models span orders of magnitude). Reference rows (the oracle) are dashed."""
-    fig, axes = plt.subplots(1, 4, figsize=(15, 3.8))
-    for ax, k in zip(axes, QUANTITIES):
-        for i, (name, s) in enumerate(rows.items()):
+def mae_horizon_figure(rows: Mapping[str, Scores], path: Path, reference: Sequence[str] = ("oracle",),
+                       emphasis: Sequence[str] = ()) -> None:
+    """Four panels (2 x 2), MAE of p, v, R, ω against the horizon h = 1..H, one line per model
+    (log scale: the models span orders of magnitude), the legend below them. Reference rows (the
+    oracle) are dashed; ``emphasis`` rows are drawn last and thicker, so no other line hides them."""
+    fig, axes = plt.subplots(2, 2, figsize=(11, 8))
+    order = [n for n in rows if n not in emphasis] + [n for n in rows if n in emphasis]
+    colors = {name: model_color(name, i) for i, name in enumerate(rows)}
+    for ax, k in zip(axes.flat, QUANTITIES):
+        for name in order:
+            s = rows[name]
             h = np.arange(1, s.horizon + 1)
-            ax.plot(h, s.mae[k], color=model_color(name, i), lw=1.6,
-                    ls="--" if name in reference else "-", label=name)
+            ax.plot(h, s.mae[k], color=colors[name], lw=2.8 if name in emphasis else 1.5,
+                    ls="--" if name in reference else "-", label=name, zorder=3 if name in emphasis else 2)
         ax.set_yscale("log")
         ax.set_title(f"MAE {_TITLE[k]}")
         ax.set_xlabel("horizon h [steps of 10 ms]")
         ax.set_ylabel(f"[{UNITS[k]}]")
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.tight_layout()
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    by = dict(zip(labels, handles))
+    fig.legend([by[n] for n in rows], list(rows), loc="lower center", ncol=min(len(rows), 4), fontsize=9,
+               frameon=False)
+    fig.tight_layout(rect=(0, 0.03 + 0.035 * ((len(rows) - 1) // 4 + 1), 1, 1))
     _save(fig, path)
 
 
