@@ -13,6 +13,7 @@ import argparse
 import errno
 import logging
 import sys
+from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from omegaconf import DictConfig, OmegaConf
@@ -80,14 +81,13 @@ def _settings_help(main: Callable[..., Any], argv: Sequence[str]) -> str:
         keys = [str(k).replace("${key}", "<model>").replace("${item}", "<model>")
                 for k in body.get("do", body).get("params", [])]
         models = list((yaml.safe_load(open(params or "params.yaml")) or {}).get("models", {}))
+        configs = sorted(p.stem for p in Path("conf", "model").glob("*.yaml"))
     except OSError:
         return "(run it in the project: its dvc.yaml and params.yaml name the settings)"
-    from nanosysid.predictors import KINDS
-
     return "\n".join([f"settings it reads (dvc.yaml's params of `{stage}`; set any as key=value, the whole block "
                       "is under that key in params.yaml):", *(f"  {k}" for k in keys),
                       f"models configured: {', '.join(models)}",
-                      f"model kinds registered: {', '.join(KINDS)}"])
+                      f"model configs (conf/model/, model@models.<name>=<config>): {', '.join(configs)}"])
 
 
 _HINTS = {

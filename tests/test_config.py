@@ -295,7 +295,7 @@ def test_the_command_line_runs_a_stage_of_the_project_from_any_directory(tmp_pat
     evaluate = cli("evaluate", "--help")
     assert evaluate.returncode == 0, evaluate.stderr
     assert "models.<model>" in evaluate.stdout and "eval" in evaluate.stdout.split("settings it reads")[1]
-    assert "lstm" in evaluate.stdout and "model kinds registered" in evaluate.stdout
+    assert "lstm" in evaluate.stdout and "model configs" in evaluate.stdout
     wrong = cli("evalute")
     assert wrong.returncode == 2 and "no stage 'evalute'" in wrong.stderr and "evaluate" in wrong.stderr
     # a setting out of its rules is the stage's one-line error, not a traceback, wherever it is run from
