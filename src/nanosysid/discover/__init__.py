@@ -21,7 +21,7 @@ are the library of :mod:`nanosysid.effects` (knowledge from the literature, seve
 effect where the literature has several, the actuation's lag and battery, and corrections of
 the nominal mass, inertia and arm); this package never imports the simulator's world.
 
-**The rule.** Residuals are weighted by their noise floor (:func:`~nanosysid.discover.fit.noise_floor`,
+**The rule.** Residuals are weighted by their noise floor (:func:`~nanosysid.discover.fit.noise_parts`,
 estimated from the measurements), cut into blocks of ``block`` seconds and dealt to ``folds`` folds;
 every score is held out (:mod:`nanosysid.discover.fit`). Forward selection: each round, every
 candidate not yet chosen is added to the chosen ones, and its held-out gain is measured block by

@@ -7,8 +7,8 @@ Their difference, per channel, is what the candidates must explain. Model-side s
 smoothed with the same Savitzky-Golay window, so the filter does not show up as a disagreement.
 
 Every fit is a least-squares problem over the six channels, each weighted by the inverse of
-its noise floor (:func:`noise_floor`: estimated from the measurements, not from any simulator
-setting), so a weighted sum of squares counts noise variances. The samples are cut into
+its noise floor (both parts of :func:`noise_parts` together: estimated from the measurements,
+not from any simulator setting), so a weighted sum of squares counts noise variances. The samples are cut into
 blocks of a few seconds, longer than the correlation of the smoothed noise and of slow
 disturbances; blocks are dealt round-robin to ``folds`` folds, and every score is held out: fitted on
 the other folds, measured on the block. :class:`Grams` keeps each block's normal equations, so
@@ -31,7 +31,7 @@ from nanosysid.identify import body_torque
 from nanosysid.rollout import advance_inputs
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "noise_floor", "noise_parts",
+__all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "noise_parts",
            "noise_spectrum", "Grams", "EDGE",
            "COLUMN_ENTRIES", "VELOCITIES", "with_position_velocity"]
 
@@ -108,12 +108,6 @@ def noise_parts(flights: Sequence[Flight], vehicle: Vehicle, window: int, order:
     smoothed = np.hypot(np.concatenate([vehicle.mass * acc, np.zeros(3)]), nom) * smooth
     differentiated = np.concatenate([np.zeros(3), np.asarray(vehicle.inertia) * gyro * deriv])
     return np.stack([smoothed, differentiated])
-
-
-def noise_floor(flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int) -> np.ndarray:
-    """Std of the measurement noise in each channel of the smoothed residual, ``(6,)`` in N and N m:
-    both parts of :func:`noise_parts` together."""
-    return np.hypot(*noise_parts(flights, vehicle, window, order))
 
 
 def noise_spectrum(parts: np.ndarray, window: int, order: int, dt: float, n: int) -> np.ndarray:
