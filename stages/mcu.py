@@ -28,9 +28,9 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     if not mc.enabled:
         return _skipped(cfg, name, SKIPPED)
     src = export_dir(cfg, name)
-    summary = src / "export.json"
-    if summary.exists() and json.loads(summary.read_text()).get("exportable") is False:
-        return _skipped(cfg, name, f"not exported: {json.loads(summary.read_text())['reason']}")
+    summary = json.loads((src / "export.json").read_text()) if (src / "export.json").exists() else {}
+    if summary.get("exportable") is False:
+        return _skipped(cfg, name, f"not exported: {summary['reason']}")
     mcu.require_toolchain()
     ex = exportable_of(cfg, name)
     for f in ("nsi_model.h", "model.c"):
