@@ -7,12 +7,11 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from nanosysid import discover, protocol
+from nanosysid import discover, protocol, sim
 from nanosysid.dataio import atomic_dir
 from nanosysid.discover.model import save_discovered
 from nanosysid.effects import entry
 from nanosysid.identify import identified_vehicle, read_identified
-from nanosysid.predictors import build_from_options
 from nanosysid.report.discovery import write_report
 from nanosysid.sim.world import DEFAULT_WORLD, state_effects
 from stages.common import plain, run_stage, vehicle_of
@@ -27,11 +26,12 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     dc = cfg.discover
     oracle = limit = None
     if dc.oracle is not None:
-        options = plain(dc.oracle)
-        oracle = build_from_options(options)
+        # the oracle built here, not through the registry of every model (which loads every network)
+        options = {k: v for k, v in plain(dc.oracle).items() if k not in ("kind", "artifact", "code")}
+        oracle = sim.oracle_of(**options)
         # the limit of a model of the state: the true dynamics without the effects of time
         state = state_effects(dict(options.get("effects") or DEFAULT_WORLD))
-        limit = build_from_options({**options, "effects": state, "seed": int(options.get("seed", 0))})
+        limit = sim.oracle_of(**{**options, "effects": state, "seed": int(options.get("seed", 0))})
     H = int(cfg.eval.horizon)
     bench = protocol.load(cfg.paths.split, horizon=H)
     vehicle = identified_vehicle(vehicle_of(cfg), dc.identified)

@@ -82,7 +82,11 @@ def test_learned_and_exported_models_are_models_of_the_config():
     learned = {n for n, m in cfg["models"].items() if m["kind"] == "learned"}
     assert set(cfg["learned"]) == learned
     assert set(cfg["export"]["models"]) <= {n for n, m in cfg["models"].items() if KINDS[m["kind"]].export}
-    assert all(cfg["export"]["models"][n] == cfg["models"][n]["artifact"] for n in cfg["export"]["models"])
+    assert all(cfg["export"]["models"][n] == {k: cfg["models"][n][k] for k in ("artifact", "code")}
+               for n in cfg["export"]["models"])
+    assert all(cfg["learned"][n] == cfg["models"][n]["code"] for n in cfg["learned"])
+    # every model's own code is a file of the project
+    assert all((ROOT / m["code"]).is_file() for m in cfg["models"].values())
 
 
 def test_the_schema_and_conf_name_the_same_settings():
@@ -158,6 +162,25 @@ def test_overrides_on_params(tmp_path):
         config.load_params(path=tmp_path / "params.yaml")
 
 
+def test_a_setting_derived_from_another_follows_its_override(tmp_path, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    out = tmp_path / "fit"
+    cfg = config.load_params([f"identify.out_dir={out}"])
+    want = f"{out}/params.json"
+    # what evaluate, train (physics + residual) and discover read, and what export depends on
+    assert (cfg.models.physics.identified == cfg.models.physics_full.identified == cfg.models.phys_res.physics.identified
+            == cfg.discover.identified == cfg.export.models.physics.artifact == want)
+    # a derived setting given its own value keeps it, on the command line ...
+    cfg = config.load_params([f"identify.out_dir={out}", "discover.identified=null"])
+    assert cfg.discover.identified is None and cfg.models.physics.identified == want
+    # ... and in params.yaml (as `dvc exp run -S models.physics.identified=x` writes it)
+    text = (ROOT / "params.yaml").read_text()
+    own = tmp_path / "params.yaml"
+    own.write_text(text.replace("identified: models/physics/params.json", "identified: mine.json", 1))
+    cfg = config.load_params([f"identify.out_dir={out}"], path=own)
+    assert cfg.models.physics.identified == "mine.json" and cfg.models.physics_full.identified == want
+
+
 def readme_blocks(section: str) -> list[str]:
     """The code blocks of a README section, in order."""
     text = (ROOT / "README.md").read_text()
@@ -173,7 +196,7 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     from nanosysid.dataio import write_flight_csv
     from stages import evaluate, train
 
-    component, model_yaml, config_lines = readme_blocks("### Adding a model")
+    component, model_yaml, config_lines, _ = readme_blocks("### Adding a model")
     (tmp_path / "networks").mkdir()
     (tmp_path / "networks" / "gru.py").write_text(component)
     monkeypatch.setattr(components, "__path__", [*components.__path__, str(tmp_path / "networks")])
@@ -183,7 +206,7 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     defaults_line, learned_line = [line for line in config_lines.splitlines() if line.strip()]
     text = (conf / "config.yaml").read_text()
     text = text.replace("  - _self_\n", f"{defaults_line}\n  - _self_\n", 1)
-    text = re.sub(r"^learned: .*$", learned_line, text, flags=re.M)
+    text = text.replace("\nlearned:\n", f"\nlearned:\n{learned_line}\n", 1)
     (conf / "config.yaml").write_text(text)
     params = tmp_path / "params.yaml"
     config.compose([], out=params, conf_dir=conf)
@@ -204,6 +227,30 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     assert scores.n_windows == 300 - 20 and all(np.isfinite(v) for v in scores.simerr.values())
     raw = torch.load(tmp_path / "gru.pt", weights_only=True)
     assert raw["network"] == {"name": "gru", "options": {"hidden": 48}}
+
+
+def test_a_model_that_is_no_network_enters_through_its_config(tmp_path, monkeypatch):
+    """The README's external model: a callable named by ``_target_`` builds the predictor; here
+    one that holds the state (the naive model's prediction), so its scores must be the naive
+    model's."""
+    from nanosysid import protocol
+    from nanosysid.predictors import build_from_options, predictor
+
+    *_, block = readme_blocks("### Adding a model")
+    (tmp_path / "mymodels").mkdir()
+    (tmp_path / "mymodels" / "__init__.py").write_text("")
+    (tmp_path / "mymodels" / "arx.py").write_text(
+        "import numpy as np\n\n\ndef fit(order, split):\n"
+        "    def predict(y0, u):\n        return np.repeat(np.asarray(y0)[:, None, :], u.shape[1], axis=1)\n"
+        "    return predict\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    options = yaml.safe_load(block.replace("${paths.split}", str(tmp_path / "split")))
+    flights = synthetic.synthetic_flights(["melon_x_run1"], 200, seed=3)
+    own = protocol.evaluate(build_from_options(options), flights, horizon=10)
+    naive = protocol.evaluate(predictor("naive"), flights, horizon=10)
+    assert own.simerr == naive.simerr and own.n_windows == naive.n_windows == 200 - 10
+    with pytest.raises(config.ConfigError, match="mymodels.arx.nothing"):
+        build_from_options({**options, "_target_": "mymodels.arx.nothing"})
 
 
 @pytest.mark.parametrize("override, message", [
@@ -309,7 +356,7 @@ def test_a_physics_model_says_whose_k_f_and_k_m_it_has(tmp_path, caplog):
 
     fit = Fit(coef=3.5e-8, stderr=0.0, r2=1.0, intercept=0.0, n=1)
     write_identified(tmp_path / "params.json", fit, dataclasses.replace(fit, coef=6.5e-11), [])
-    with caplog.at_level("INFO", logger="nanosysid.predictors"):
+    with caplog.at_level("INFO"):
         nominal = predictor("physics")
         identified = predictor("physics", identified=str(tmp_path / "params.json"))
     said = [r.getMessage() for r in caplog.records]

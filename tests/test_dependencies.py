@@ -10,7 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from nanosysid.depgraph import imported_files, stages, written_deps
+import yaml
+
+from nanosysid.depgraph import ONE_MODEL, imported_files, stages, written_deps
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -22,17 +24,48 @@ def uncovered(files: set[Path], deps: list[str]) -> list[str]:
                   if not any(f == p or p in f.parents for p in paths))
 
 
+def expanded() -> dict[str, list[str]]:
+    """Every stage of dvc.yaml as DVC runs it (``train@lstm``), with its deps resolved."""
+    from dvc.repo import Repo
+
+    with Repo(str(ROOT)) as repo:
+        return {s.addressing: [str(Path(d.def_path)) for d in s.deps] for s in repo.index.stages}
+
+
 @pytest.mark.parametrize("stage", sorted(stages()))
 def test_stage_depends_on_every_module_it_imports(stage):
     module, deps = stages()[stage]
-    missing = uncovered(imported_files(module), deps)
+    # a stage that runs one model imports the networks by name at run time: that model's own is
+    # its code entry (checked with the resolved stages below), the others are no dependency
+    missing = uncovered(imported_files(module, loaded_by_name=module not in ONE_MODEL), deps)
     assert not missing, f"dvc.yaml: stage {stage!r} imports {missing} but does not depend on them"
 
 
+def test_a_stage_of_one_model_depends_on_that_models_code_and_no_other_networks():
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    networks = {str(p.relative_to(ROOT)) for p in (SRC / "nanosysid/models/components").glob("*.py")} - {
+        "src/nanosysid/models/components/__init__.py", "src/nanosysid/models/components/mlp.py"}  # lstm builds on mlp
+    checked = 0
+    for stage, deps in expanded().items():
+        script, _, name = stage.partition("@")
+        if stages()[script][0] not in ONE_MODEL:
+            continue
+        model = params["models"][name]
+        network = (model.get("network") or {}).get("name")
+        own = f"src/nanosysid/models/components/{network}.py" if network else None
+        assert model["code"] in deps, (stage, model["code"])
+        assert {d for d in deps if d in networks} == ({own} & networks), (stage, deps)
+        checked += 1
+    assert checked >= 20
+
+
 def test_the_check_sees_a_removed_dependency():
-    module, deps = stages()["export"]
+    module, deps = stages()["report"]
     assert not uncovered(imported_files(module), deps)
     assert "src/nanosysid/effects.py" in uncovered(imported_files(module), [d for d in deps if d != "src/nanosysid/effects.py"])
+    # the report loads every network by name: each is its dependency
+    assert "src/nanosysid/models/components/lstm.py" in uncovered(imported_files(module), [
+        d for d in deps if d != "src/nanosysid/models/components/lstm.py"])
 
 
 def test_lazy_imports_are_followed():
@@ -62,10 +95,9 @@ def test_discovery_never_imports_the_simulated_world():
         assert not reached, f"{module} imports the simulator: {reached}"
 
 
-@pytest.mark.parametrize("module", ["src/nanosysid/preprocess/sync.py", "src/nanosysid/effects.py",
-                                    "src/nanosysid/discover/fit.py"])
-def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tmp_path, venv_env, module):
-    import json
+def copied(tmp_path: Path, env: dict):
+    """A copy of the project's code, settings and ``dvc.lock`` (no outputs) as its own git
+    repository, and a function running a command in it."""
     import shutil
     import subprocess
 
@@ -73,16 +105,59 @@ def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tm
     repo.mkdir()
     for item in ("dvc.yaml", "dvc.lock", "params.yaml", "params-rig.yaml", "conf", "stages", "src", ".dvcignore",
                  ".gitignore"):
-        (shutil.copytree if (ROOT / item).is_dir() else shutil.copy)(ROOT / item, repo / item)
+        (shutil.copytree if (ROOT / item).is_dir() else shutil.copy)(ROOT / item, repo / item,
+                                                                      **({"ignore": shutil.ignore_patterns("__pycache__")}
+                                                                         if (ROOT / item).is_dir() else {}))
     (repo / ".dvc").mkdir()
     shutil.copy(ROOT / ".dvc" / "config", repo / ".dvc" / "config")
 
     def sh(*cmd):
-        r = subprocess.run(cmd, cwd=repo, env=venv_env, capture_output=True, text=True)
+        r = subprocess.run(cmd, cwd=repo, env=env, capture_output=True, text=True)
         assert r.returncode == 0, f"{cmd}: {r.stdout}\n{r.stderr}"
         return r.stdout
 
     sh("git", "init", "-q")
+    return repo, sh
+
+
+def test_adding_the_readmes_example_model_reruns_its_own_stages_the_report_and_the_recordings(tmp_path, venv_env):
+    import json
+
+    from nanosysid import config
+    from test_config import readme_blocks
+
+    repo, sh = copied(tmp_path, venv_env)
+    before = json.loads(sh("dvc", "status", "--json"))
+    # the README's three files, then `make params` and `make deps`
+    component, model_yaml, config_lines, _ = readme_blocks("### Adding a model")
+    (repo / "src/nanosysid/models/components/gru.py").write_text(component)
+    (repo / "conf/model/gru.yaml").write_text(model_yaml)
+    defaults_line, learned_line = [line for line in config_lines.splitlines() if line.strip()]
+    text = (repo / "conf/config.yaml").read_text()
+    text = text.replace("  - _self_\n", f"{defaults_line}\n  - _self_\n", 1)
+    (repo / "conf/config.yaml").write_text(text.replace("\nlearned:\n", f"\nlearned:\n{learned_line}\n", 1))
+    config.compose([], out=repo / "params.yaml", conf_dir=repo / "conf")
+    config.compose([], out=repo / "params-rig.yaml", conf_dir=repo / "conf", root="rig")
+    (repo / "dvc.yaml").write_text(written_deps((repo / "dvc.yaml").read_text(), root=repo))
+    # the suite's dependency checks hold in the copy
+    for stage, (module, deps) in stages(repo).items():
+        files = imported_files(module, repo, loaded_by_name=module not in ONE_MODEL)
+        paths = [(repo / d).resolve() for d in deps]
+        assert all(any(f == p or p in f.parents for p in paths) for f in files), stage
+    after = json.loads(sh("dvc", "status", "--json"))
+    stale = {name for name in after if after[name] != before.get(name)}
+    # its own stages (the simulated world's and the rig's training, its evaluation), and those
+    # that load every model: the report and the recordings; no other model is trained or scored
+    assert stale == {"train@gru", "evaluate@gru", "rig_train@gru", "report", "visualize", "rig_report",
+                     "rig_visualize"}, stale
+
+
+@pytest.mark.parametrize("module", ["src/nanosysid/preprocess/sync.py", "src/nanosysid/effects.py",
+                                    "src/nanosysid/discover/fit.py"])
+def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tmp_path, venv_env, module):
+    import json
+
+    repo, sh = copied(tmp_path, venv_env)
     with open(repo / module, "a") as f:
         f.write("\n# changed\n")
     status = json.loads(sh("dvc", "status", "--json"))

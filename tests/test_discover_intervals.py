@@ -130,3 +130,20 @@ def test_the_models_name_says_terms_only_where_it_applies_some():
     assert result(drag, fitted, time).name == "physics+induced_drag+terms"
     assert result(drag, left_out, time).name == "physics+induced_drag"
     assert result(time).name == "physics"
+
+
+def test_a_finding_whose_every_interval_holds_zero_is_not_named():
+    from nanosysid.discover.records import Finding
+    from nanosysid.discover.verdicts import undetermined
+
+    def finding(name, *cis):
+        return Finding("named", name, ("F_x",), {f"c{i}": 0.0 for i in range(len(cis))},
+                       {"ci": {f"c{i}": ci for i, ci in enumerate(cis)}})
+
+    spread = finding("rotor_spread", (-0.02, 0.03), (-0.01, 0.0), (-0.4, 0.1), (0.0, 0.0))  # all four hold 0
+    drag = finding("induced_drag", (-0.1, 0.5), (0.2, 0.9))       # the second excludes 0
+    ground = finding("ground_effect", (1e-9, 1e-3))                # a thin interval just above 0
+    delay = finding("input_delay", (0.0, 0.01))                    # starts at the grid's first point
+    undetermined([spread, drag, ground, delay])
+    assert spread.verdict == "undetermined" and spread.evidence["was"] == "named"
+    assert [f.verdict for f in (drag, ground, delay)] == ["named"] * 3

@@ -38,7 +38,8 @@ LEARNED = ("residual", "phys_res", "lstm")
 
 
 def tiny_args(root: Path, *extra: str) -> list[str]:
-    """Stage arguments that put every input and output of the pipeline under ``root``."""
+    """Stage arguments that put every input and output of the pipeline under ``root`` (the
+    settings derived from these, the identified ``params.json`` of every model, follow them)."""
     params = root / "params.yaml"
     if not params.exists():
         config.compose([], out=params, conf_dir=ROOT / "conf")
@@ -55,10 +56,6 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"paths.eval={root / 'eval'}",
         f"paths.sim_report={root / 'sim'}",
         f"identify.out_dir={root / 'physics'}",
-        f"models.physics.identified={root / 'physics' / 'params.json'}",
-        f"models.physics_full.identified={root / 'physics' / 'params.json'}",
-        f"models.phys_res.physics.identified={root / 'physics' / 'params.json'}",
-        f"discover.identified={root / 'physics' / 'params.json'}",
         f"paths.train_logs={root / 'train'}",
         f"report.markdown={root / 'report' / 'benchmark.md'}",
         f"report.latex={root / 'report' / 'benchmark.tex'}",
@@ -71,7 +68,6 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
         f"paths.export={root / 'export'}",
         f"discover.out_dir={root / 'discovered'}",
         f"discover.report_dir={root / 'discovery'}",
-        f"models.discovered.model={root / 'discovered' / 'model.json'}",
         *(f"models.{m}.checkpoint={root / 'models' / m / 'model.pt'}" for m in LEARNED),
         *TINY_SIM,
         *extra,
@@ -186,6 +182,15 @@ def test_split_and_evaluate(tiny):
     assert simerr["oracle"]["v"] < simerr["physics"]["v"]
     # two epochs on 3 s of flight teach little; phys_res cannot be worse than its physics start
     assert simerr["phys_res"]["p"] < 1.5 * simerr["physics"]["p"]
+
+
+def test_every_stage_reads_the_identified_params_of_the_out_dir_it_is_given(tiny, caplog):
+    # identify.out_dir is the tiny pipeline's: the physics model's k_F, k_M come from its file,
+    # not from the repository's models/physics/params.json
+    with caplog.at_level("INFO", logger="nanosysid.identify"):
+        assert run(evaluate, tiny, name="physics") == 0
+    read = [r.getMessage() for r in caplog.records if "from " in r.getMessage()]
+    assert read and all(m.endswith(str(tiny / "physics" / "params.json")) for m in read), read
 
 
 def evaluated(tiny):

@@ -26,7 +26,7 @@ from omegaconf import DictConfig, OmegaConf
 from nanosysid.errors import ConfigError
 from nanosysid.settings import describe, fits, kind_of, leaves
 
-__all__ = ["compose", "compose_text", "load_params", "select_groups", "apply_overrides", "check_values",
+__all__ = ["compose", "compose_text", "load_params", "rederive", "interpolations", "select_groups", "apply_overrides", "check_values",
            "renamed", "RENAMED"]
 
 # relative to the working directory: stages run from the root of the project they belong to
@@ -138,10 +138,65 @@ def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> 
     if not path.exists():
         raise ConfigError(f"{path}: not found; run `make params` to compose it from conf/")
     cfg = OmegaConf.load(path)
-    cfg = apply_overrides(cfg, select_groups(cfg, renamed(overrides)))
+    overrides = renamed(overrides)
+    if overrides:
+        rederive(cfg, _root_of(path), [o for o in overrides if _is_group_choice(o)])
+    cfg = apply_overrides(cfg, select_groups(cfg, overrides))
     OmegaConf.resolve(cfg)
     check_values(OmegaConf.to_container(cfg), f"{path}{' with overrides' if overrides else ''}")
     return cfg
+
+
+def _root_of(path: Path) -> str:
+    """The root config ``path`` is composed from (``params-rig.yaml``: ``rig``)."""
+    return next((root for root, p in ROOTS.items() if Path(path).name == p.name), "config")
+
+
+def _is_group_choice(override: str) -> bool:
+    key, eq, _ = override.partition("=")
+    return bool(eq) and key.isidentifier() and (CONF_DIR / key).is_dir()
+
+
+def interpolations(root: str = "config", groups: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) -> dict[str, str]:
+    """Every setting of the composition that ``conf/`` derives from another one, as the
+    interpolation it is written with (``models.physics.identified``:
+    ``${identify.out_dir}/params.json``); ``groups``: the config groups' choices
+    (``data=csv``)."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(str(Path(conf_dir).resolve()), version_base=None):
+        raw = OmegaConf.to_container(hydra_compose(config_name=root, overrides=list(groups)), resolve=False)
+    return {k: v for k, v in leaves(raw) if isinstance(v, str) and "${" in v}
+
+
+def rederive(cfg: DictConfig, root: str = "config", groups: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) -> list[str]:
+    """Put back the interpolation of every setting of ``cfg`` (a resolved ``params.yaml``) that
+    holds the value ``conf/`` derives for it, so that an override of what it is derived from
+    (``identify.out_dir=x``) reaches it (``models.physics.identified``: ``x/params.json``), as it
+    would have on composing. A setting given its own value (``dvc exp run -S``) keeps it. Returns
+    the settings put back; none without a ``conf/``."""
+    if not (Path(conf_dir) / f"{root}.yaml").is_file():
+        return []
+    derived = {k: v for k, v in interpolations(root, groups, conf_dir=conf_dir).items()
+               if OmegaConf.select(cfg, k, default=_ABSENT) is not _ABSENT}
+    trial = cfg.copy()
+    for key, text in derived.items():
+        OmegaConf.update(trial, key, text, merge=False, force_add=True)
+    back = []
+    for key, text in derived.items():
+        try:
+            same = OmegaConf.select(trial, key, throw_on_resolution_failure=True) == OmegaConf.select(cfg, key)
+        except Exception:  # an interpolation that no longer resolves here: the file's value stands
+            same = False
+        if same:
+            back.append(key)
+    for key in back:
+        OmegaConf.update(cfg, key, derived[key], merge=False)
+    return back
+
+
+_ABSENT = object()
 
 
 def check_values(cfg: dict, where: str = "params.yaml") -> None:

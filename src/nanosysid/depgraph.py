@@ -26,7 +26,8 @@ from typing import Sequence
 
 import yaml
 
-__all__ = ["module_file", "direct_imports", "imported_files", "stages", "needed_deps", "written_deps"]
+__all__ = ["module_file", "direct_imports", "by_name", "imported_files", "stages", "needed_deps", "written_deps",
+           "ONE_MODEL"]
 
 OWN = ("nanosysid", "stages")
 ROOT = Path(__file__).resolve().parents[2]  # the project: src/nanosysid/depgraph.py
@@ -53,9 +54,32 @@ def _parents(name: str) -> list[str]:
     return [".".join(parts[:i]) for i in range(1, len(parts))]
 
 
+# the stages that run one model (a foreach over the models): each depends on its model's own
+# code through its item's ``code`` entry in dvc.yaml (the model's config names it), not on every
+# network the components package can load by name, so adding or editing one network reruns its
+# model's stages and those that load every model (the report, the recordings), no other
+ONE_MODEL = ("stages.train", "stages.evaluate", "stages.export", "stages.mcu")
+
+
 @lru_cache(maxsize=None)
 def direct_imports(path: Path, root: Path = ROOT) -> frozenset[str]:
-    """Project modules a file imports anywhere in its body."""
+    """Project modules a file imports anywhere in its body, and those its package loads by name."""
+    return _static_imports(path, root) | by_name(path, root)
+
+
+@lru_cache(maxsize=None)
+def by_name(path: Path, root: Path = ROOT) -> frozenset[str]:
+    """The modules a package's ``__init__`` loads by name
+    (``importlib.import_module(f"{__name__}.{name}")``, the networks): all of its modules."""
+    if path.name != "__init__.py" or "importlib.import_module(f\"{__name__}." not in path.read_text():
+        return frozenset()
+    src = _src(root)
+    package = ".".join(path.relative_to(src if src in path.parents else root).parent.parts)
+    return frozenset(f"{package}.{f.stem}" for f in path.parent.glob("*.py") if f.stem != "__init__")
+
+
+@lru_cache(maxsize=None)
+def _static_imports(path: Path, root: Path = ROOT) -> frozenset[str]:
     names: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
@@ -69,16 +93,13 @@ def direct_imports(path: Path, root: Path = ROOT) -> frozenset[str]:
         for m in (*_parents(n), n):
             if module_file(m, root):
                 out.add(m)
-    if path.name == "__init__.py" and "importlib.import_module(f\"{__name__}." in path.read_text():
-        # a package that loads its modules by name (the networks) depends on all of them
-        src = _src(root)
-        package = ".".join(path.relative_to(src if src in path.parents else root).parent.parts)
-        out.update(f"{package}.{f.stem}" for f in path.parent.glob("*.py") if f.stem != "__init__")
     return frozenset(out)
 
 
-def imported_files(module: str, root: Path = ROOT) -> set[Path]:
-    """Every project file that running ``python -m <module>`` imports (itself included)."""
+def imported_files(module: str, root: Path = ROOT, *, loaded_by_name: bool = True) -> set[Path]:
+    """Every project file that running ``python -m <module>`` imports (itself included).
+    ``loaded_by_name=False``: without the modules a package loads by name (:func:`by_name`),
+    though with what they import (a network built on another's layers)."""
     seen: set[str] = set()
     todo = [module, *_parents(module)]
     while todo:
@@ -86,7 +107,13 @@ def imported_files(module: str, root: Path = ROOT) -> set[Path]:
         if m in seen or not module_file(m, root):
             continue
         seen.add(m)
-        todo.extend(direct_imports(module_file(m, root), root))
+        f = module_file(m, root)
+        todo.extend(_static_imports(f, root))
+        for n in by_name(f, root):
+            if loaded_by_name:
+                todo.append(n)
+            elif module_file(n, root):
+                todo.extend(_static_imports(module_file(n, root), root))
     return {module_file(m, root) for m in seen}
 
 
@@ -103,8 +130,9 @@ def stages(root: Path = ROOT) -> dict[str, tuple[str, list[str]]]:
 
 def needed_deps(module: str, root: Path = ROOT) -> list[str]:
     """The files a stage imports, sorted; one entry per file, so that an edit to a module the
-    stage does not import never reruns it."""
-    return sorted(str(f.relative_to(root)) for f in imported_files(module, root))
+    stage does not import never reruns it. A stage of :data:`ONE_MODEL` leaves out the
+    modules loaded by name: its model's own is its ``code`` entry."""
+    return sorted(str(f.relative_to(root)) for f in imported_files(module, root, loaded_by_name=module not in ONE_MODEL))
 
 
 def written_deps(text: str, root: Path = ROOT) -> str:

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import logging
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Sequence
@@ -41,6 +42,8 @@ from nanosysid.dataio import atomic_file, Flight, json_text, read_json_record
 from nanosysid.dynamics import SPIN
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
+
+_log = logging.getLogger(__name__)
 
 __all__ = ["Fit", "fit_thrust", "fit_yaw_moment", "fit_yaw_moment_iv", "identify", "body_torque", "yaw_regressor",
            "with_inertia_range", "write_identified", "read_identified", "identified_vehicle"]
@@ -345,4 +348,6 @@ def identified_vehicle(vehicle: Vehicle, path: str | Path | None) -> Vehicle:
     if path is None:
         return vehicle
     d = read_identified(path)
+    # which file a run's k_F and k_M came from is part of its record (an override may move it)
+    _log.info("k_F = %.4g, k_M = %.4g from %s", float(d["k_f"]), float(d["k_m"]), path)
     return dataclasses.replace(vehicle, k_f=float(d["k_f"]), k_m=float(d["k_m"]))

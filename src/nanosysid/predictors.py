@@ -68,10 +68,10 @@ def _naive(**options: Any) -> Predictor:
 def _physics(*, angular_dynamics: bool, name: str) -> Callable[..., Predictor]:
     def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1, identified: str | None = None) -> Predictor:
         v = identified_vehicle(_vehicle(vehicle), identified)
-        # a user's row differs from the pipeline's where this differs: say which k_F and k_M it is
-        log.info("%s: k_F %.4g, k_M %.4g, %s", name, v.k_f, v.k_m,
-                 f"identified ({identified})" if identified is not None
-                 else "the vehicle's own, not identified (give identified=<the identify stage's params.json>)")
+        if identified is None:
+            # a user's row differs from the pipeline's here (identified_vehicle logs the file otherwise)
+            log.info("%s: k_F %.4g, k_M %.4g, the vehicle's own, not identified (give identified=<the identify "
+                     "stage's params.json>)", name, v.k_f, v.k_m)
         step = PhysicsStep(v, dt=dt, substeps=substeps, angular_dynamics=angular_dynamics)
         return StepPredictor(step, name=name)
 
@@ -82,9 +82,8 @@ def _oracle(*, effects: Any = None, vehicle: Any = None, substeps: int = 4, dt: 
             rotor_delay: float | None = None, seed: int = 0, compile: bool = True) -> Predictor:
     from nanosysid import sim  # the simulator (scipy's filters and splines) only for the oracle
 
-    eff = None if effects is None else dict(effects)
-    return sim.oracle(eff, vehicle=_vehicle(vehicle), substeps=substeps, dt=dt, rotor_delay=rotor_delay, seed=int(seed),
-                      compile=compile)
+    return sim.oracle_of(effects=effects, vehicle=vehicle, substeps=substeps, dt=dt, rotor_delay=rotor_delay,
+                         seed=seed, compile=compile)
 
 
 def _learned(*, checkpoint: str, **training: Any) -> Predictor:
@@ -108,6 +107,29 @@ def _discovered(*, model: str) -> Predictor:
     return load_discovered(model)
 
 
+def _external(**options: Any) -> Predictor:
+    """A predictor of the user's own, built by Hydra's instantiation of the block: ``_target_``
+    names a callable (``package.module.name``, importable from the project's root) called with
+    the block's other keys, which returns ``predict(y0 (B, 13), u (B, H, 4)) -> (B, H, 13)``
+    (numpy or torch): a fitted least-squares model, an ARX, a GP, another package's model;
+    ``_partial_: true`` makes the callable itself the predictor."""
+    from hydra.errors import InstantiationException
+    from hydra.utils import instantiate
+
+    target = options.get("_target_")
+    if not isinstance(target, str) or not target:
+        raise ConfigError("a model of kind 'external' names its builder with _target_ (package.module.name), "
+                          f"got {target!r}")
+    try:
+        predict = instantiate(options)
+    except InstantiationException as e:
+        first = str(e).strip().splitlines()[0]
+        raise ConfigError(f"model {target}: cannot build it: {first}") from None
+    if not callable(predict):
+        raise ConfigError(f"model {target}: returned {type(predict).__name__}, not a predict(y0, u)")
+    return predict
+
+
 KINDS: dict[str, ModelKind] = {
     "naive": ModelKind(_naive, None, costs.no_cost),
     "physics": ModelKind(_physics(angular_dynamics=False, name="physics"), steps.physics_step, costs.physics_cost),
@@ -116,6 +138,7 @@ KINDS: dict[str, ModelKind] = {
     "oracle": ModelKind(_oracle, None, costs.no_cost),
     "learned": ModelKind(_learned, steps.learned_step, costs.learned_cost),
     "discovered": ModelKind(_discovered, steps.augmented_step, costs.augmented_cost),
+    "external": ModelKind(_external, None, costs.no_cost),
 }
 
 
@@ -137,7 +160,7 @@ def predictor(kind: str, **options: Any) -> Predictor:
     model has the vehicle's own k_F and k_M, not the ones the pipeline's rows use
     (``models/physics/params.json``); it logs which it has.
     """
-    if kind.endswith((".pt", ".ckpt")):
+    if str(kind).endswith((".pt", ".ckpt")):
         return _learned(checkpoint=kind)
     return _kind(kind).build(**options)
 
@@ -145,11 +168,15 @@ def predictor(kind: str, **options: Any) -> Predictor:
 def build_from_options(options: dict[str, Any]) -> Predictor:
     """The predictor of a ``models.<name>`` block as plain data (``kind`` plus options).
 
-    ``artifact`` names the file or folder the model is made from, for DVC's dependency
-    tracking, and ``train`` only matters to training; neither is an option of the predictor.
+    ``artifact`` names the file or folder the model is made from and ``code`` its own code, for
+    DVC's dependency tracking, and ``train`` only matters to training; none is an option of the
+    predictor. A block of kind ``external`` names its builder with ``_target_`` (:func:`_external`).
     A learned model's ``network`` and ``physics`` are checked against its checkpoint.
     """
-    opts = {k: v for k, v in options.items() if k not in ("kind", "artifact", "train")}
+    opts = {k: v for k, v in options.items() if k not in ("kind", "artifact", "code", "train")}
+    if "kind" not in options:
+        raise ConfigError(f"a model's config names its kind (one of {', '.join(sorted(KINDS))}), got the keys "
+                          f"{sorted(options)}")
     return predictor(options["kind"], **opts)
 
 

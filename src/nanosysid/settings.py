@@ -93,7 +93,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("rig.logs.pole_pairs", POSITIVE), ("rig.logs.erpm_unit", POSITIVE), ("rig.logs.keep_incomplete", FLAG),
     ("rig.logs.aliases.*", TEXT), ("rig.logs.flights.*", TEXT), ("rig.artifacts.*", TEXT),
     # models
-    ("models.*.kind", TEXT), ("models.*.artifact", TEXT), ("models.*.checkpoint", TEXT), ("models.*.model", TEXT),
+    ("models.*.kind", TEXT), ("models.*.artifact", TEXT), ("models.*.code", TEXT), ("models.*.checkpoint", TEXT), ("models.*.model", TEXT),
     # (``*`` spans dots: models.*.dt is also phys_res's models.phys_res.physics.dt)
     ("models.*.identified", TEXT_OR_NULL), ("models.*.dt", POSITIVE), ("models.*.substeps", COUNT),
     ("models.oracle.effects.*", NONNEG), ("models.*.rotor_delay", NONNEG_OR_NULL), ("models.oracle.compile", FLAG),
@@ -103,7 +103,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("models.*.train.threads", COUNT),
     ("models.*.train.optimizer.lr", POSITIVE), ("models.*.train.val_runs", COUNT),
     ("models.*.train.optimizer.*", FREE), ("models.*.train.scheduler", FREE), ("models.*.train.scheduler.*", FREE),
-    ("learned", TEXT), ("trainer.devices", COUNT_OR_AUTO),
+    ("learned.*", TEXT), ("trainer.devices", COUNT_OR_AUTO),
     ("trainer.accelerator", ("auto", "cpu", "gpu", "cuda", "mps")),  # Lightning's
     # evaluation, identification, reports
     ("eval.horizon", COUNT), ("eval.batch_size", COUNT), ("eval.table_horizons", COUNT),

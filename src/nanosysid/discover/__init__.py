@@ -93,12 +93,12 @@ from nanosysid.discover.analysis import disagreement
 from nanosysid.discover.assemble import assemble, sindy_baseline
 from nanosysid.discover.fit import VELOCITIES, with_position_velocity
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
-from nanosysid.discover.records import STATELESS, UNSTABLE, VERDICTS, Candidate, DiscoveryResult, Finding, Pick
+from nanosysid.discover.records import STATELESS, UNDETERMINED, UNSTABLE, VERDICTS, Candidate, DiscoveryResult, Finding, Pick
 from nanosysid.discover.search import Search
 from nanosysid.discover import stability
 from nanosysid.discover.select import check_reference, prune, select
 from nanosysid.discover.sources import reference_pairs
-from nanosysid.discover.verdicts import coefficients, named, stateless, unnamed
+from nanosysid.discover.verdicts import coefficients, named, stateless, undetermined, unnamed
 from nanosysid.effects import CHANNELS, LIBRARY
 from nanosysid.errors import ConfigError, DataError, PredictionError
 from nanosysid.identify import identify
@@ -107,7 +107,7 @@ from nanosysid.models.physics import PhysicsStep
 from nanosysid.rollout import StepPredictor
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["run", "Finding", "DiscoveryResult", "Candidate", "Pick", "VERDICTS", "STATELESS", "UNSTABLE", "CHANNELS",
+__all__ = ["run", "Finding", "DiscoveryResult", "Candidate", "Pick", "VERDICTS", "STATELESS", "UNSTABLE", "UNDETERMINED", "CHANNELS",
            "LIBRARY",
            "MIN_TRAVEL", "MIN_RATE"]
 
@@ -214,6 +214,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         folds_out = stability.leave_one_flight_out(search, selection, v, delays, alpha=alpha, floor=floor,
                                                    share=share, progress=progress)
         stability.apply(findings, folds_out, search, selection)
+    undetermined(findings)
     model, augmented_vehicle = assemble(v, selection.chosen, fit.coef, selection.delay, rest.terms, findings,
                                         train_flights, horizon=horizon, batch_size=batch_size)
 

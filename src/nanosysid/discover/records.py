@@ -13,11 +13,14 @@ from nanosysid.discover.model import AugmentedPredictor
 from nanosysid.effects import LIBRARY
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["VERDICTS", "STATELESS", "UNSTABLE", "Candidate", "Pick", "Finding", "DiscoveryResult"]
+__all__ = ["VERDICTS", "STATELESS", "UNSTABLE", "UNDETERMINED", "Candidate", "Pick", "Finding", "DiscoveryResult"]
 
-VERDICTS = ("named", "ambiguous", "unnamed", "not a function of the state", "unstable")
+VERDICTS = ("named", "ambiguous", "unnamed", "not a function of the state", "unstable", "undetermined")
 STATELESS = VERDICTS[3]
 UNSTABLE = VERDICTS[4]
+# an entry the search chose whose every coefficient's interval holds zero: the data say something
+# of its shape improves the fit, not that the effect is there at any size
+UNDETERMINED = VERDICTS[5]
 
 
 @dataclass

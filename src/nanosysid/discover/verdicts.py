@@ -12,7 +12,7 @@ from typing import Sequence
 import numpy as np
 
 from nanosysid.discover import generic
-from nanosysid.discover.records import STATELESS, Finding
+from nanosysid.discover.records import STATELESS, UNDETERMINED, Finding
 from nanosysid.discover.sources import REPEATS, Pairs, source
 from nanosysid.discover.search import Search, channels_of, true_torque_grams
 from nanosysid.discover.select import Selection
@@ -23,7 +23,7 @@ from nanosysid.vehicle import Vehicle
 
 INERTIA = "inertia"  # the library entry that corrects the body's inertia
 
-__all__ = ["Coefficients", "coefficients", "named", "Remainder", "unnamed", "stateless"]
+__all__ = ["Coefficients", "coefficients", "named", "undetermined", "Remainder", "unnamed", "stateless"]
 
 
 @dataclass
@@ -154,6 +154,18 @@ def named(search: Search, selection: Selection, fit: Coefficients, vehicle: Vehi
         else:
             findings.append(Finding("named", name, channels, params, ev))
     return findings
+
+
+def undetermined(findings: Sequence[Finding]) -> None:
+    """A named finding whose every coefficient's 95 % interval (``evidence["ci"]``, the final
+    one) holds zero becomes ``undetermined`` (``evidence["was"]``: named): nothing excludes that
+    the effect is absent. The augmented model still uses it. The delay, whose interval starts at
+    the grid's first point, is left as it is."""
+    for f in findings:
+        ci = f.evidence.get("ci") or {}
+        if f.verdict == "named" and f.name != DELAY.name and ci and all(lo <= 0.0 <= hi for lo, hi in ci.values()):
+            f.evidence["was"] = f.verdict
+            f.verdict = UNDETERMINED
 
 
 def _rival_half(c, name: str, folds: Sequence[dict[str, list[float]]], vehicle: Vehicle, n_folds: int,

@@ -92,6 +92,11 @@ def _verdict_line(f) -> str:
                 f"{ev['folds']['of']} folds that leave one flight out (not on "
                 f"{', '.join(ev['folds']['missed'])}): one or a few flights carry it, so it is not named. The "
                 "augmented model still uses it.")
+    if f.verdict == "undetermined":
+        coef = "; ".join(f"{k} {_fmt(ev['ci'][k][0])} … {_fmt(ev['ci'][k][1])}" for k in f.params)
+        return (f"**Undetermined** on {', '.join(f.channels)}: `{f.name}` improves the held-out fit ({stats}), but "
+                f"every coefficient's 95 % interval holds zero ({coef}): the data do not exclude that the effect is "
+                "absent, so it is not named. The augmented model still uses it.")
     if f.verdict == "ambiguous":
         alts = ", ".join(f"`{a}`" for a in f.alternatives)
         how = "; ".join(f"`{a}`: {t}" for a, t in ev["separate_by"].items() if t)
@@ -162,6 +167,8 @@ def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
             lines.append(f"- unnamed ({where}): " + " + ".join(f["params"]))
         elif f["verdict"] == "unstable":
             lines.append(f"- unstable ({where}): `{f['name'] or f['alternatives'][0]}` not reached on every fold")
+        elif f["verdict"] == "undetermined":
+            lines.append(f"- undetermined ({where}): `{f['name']}`, every coefficient's interval holds zero")
         else:
             src = (f["evidence"].get("source") or {}).get("source")
             lines.append(f"- not a function of the state ({where})" + (f": a function of {src}" if src and src != "undecided" else ""))
@@ -201,8 +208,7 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
     counts = {v: sum(f.verdict == v for f in result.findings) for v in VERDICTS}
     L += [f"The nominal model (rigid body with the torque equation, k_F and k_M {nominal}) "
           f"was compared with the measurements. {len(result.findings)} disagreements stand above the noise floor: "
-          f"{counts['named']} named, {counts['ambiguous']} ambiguous, {counts['unnamed']} unnamed, "
-          f"{counts['not a function of the state']} not a function of the state. The augmented model "
+          + ", ".join(f"{n} {v}" for v, n in counts.items() if n or v == "named") + ". The augmented model "
           f"`{result.name}` is scored below against the nominal model"
           + (" and the oracle (the simulator's true dynamics)." if result.oracle else "."), ""]
     L += ["| SimErr on the test flights | " + " | ".join(_QLABEL[k] for k in QUANTITIES) + " |",
@@ -393,7 +399,7 @@ def _touching(result: DiscoveryResult, channels: tuple[str, ...]) -> list:
 
 def _finding_phrase(f) -> str:
     ev = f.evidence
-    if f.verdict in ("named", "ambiguous", "unstable"):
+    if f.verdict in ("named", "ambiguous", "unstable", "undetermined"):
         what = f"`{f.entry}`" if f.verdict != "ambiguous" else " or ".join(f"`{a}`" for a in f.alternatives)
         coef = "; ".join(f"{k} = {v:.3g} ({ev['ci'][k][0]:.3g} … {ev['ci'][k][1]:.3g})" for k, v in f.params.items())
         held = f", reached on {ev['folds']['held']} of {ev['folds']['of']} flight folds" if "folds" in ev else ""

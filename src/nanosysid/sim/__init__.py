@@ -95,3 +95,13 @@ def oracle(effects: Mapping[str, float] | None = None, *, vehicle: Vehicle | Non
     """
     return Oracle(_world(effects), vehicle, dt=dt, substeps=substeps, rotor_delay=rotor_delay, seed=seed,
                   extra_wrench=extra_wrench, compile=compile)
+
+
+def oracle_of(*, effects: Mapping[str, float] | None = None, vehicle: Vehicle | Mapping | None = None,
+              substeps: int = 4, dt: float = 0.01, rotor_delay: float | None = None, seed: int = 0,
+              compile: bool = True) -> Oracle:
+    """:func:`oracle` from a model's config block (``models.oracle`` less ``kind``, ``artifact``
+    and ``code``): the vehicle a mapping (None: the paper's), the effects a mapping."""
+    v = Vehicle() if vehicle is None else vehicle if isinstance(vehicle, Vehicle) else Vehicle.from_mapping(vehicle)
+    return oracle(None if effects is None else dict(effects), vehicle=v, substeps=substeps, dt=dt,
+                  rotor_delay=rotor_delay, seed=int(seed), compile=compile)
