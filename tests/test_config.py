@@ -196,7 +196,7 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     from nanosysid.dataio import write_flight_csv
     from stages import evaluate, train
 
-    component, model_yaml, config_lines, _ = readme_blocks("### Adding a model")
+    component, model_yaml, config_lines, _ = readme_blocks("## Your own model")
     (tmp_path / "networks").mkdir()
     (tmp_path / "networks" / "gru.py").write_text(component)
     monkeypatch.setattr(components, "__path__", [*components.__path__, str(tmp_path / "networks")])
@@ -236,7 +236,7 @@ def test_a_model_that_is_no_network_enters_through_its_config(tmp_path, monkeypa
     from nanosysid import protocol
     from nanosysid.predictors import build_from_options, predictor
 
-    *_, block = readme_blocks("### Adding a model")
+    *_, block = readme_blocks("## Your own model")
     (tmp_path / "mymodels").mkdir()
     (tmp_path / "mymodels" / "__init__.py").write_text("")
     (tmp_path / "mymodels" / "arx.py").write_text(

@@ -129,7 +129,7 @@ def test_adding_the_readmes_example_model_reruns_its_own_stages_the_report_and_t
     repo, sh = copied(tmp_path, venv_env)
     before = json.loads(sh("dvc", "status", "--json"))
     # the README's three files, then `make params` and `make deps`
-    component, model_yaml, config_lines, _ = readme_blocks("### Adding a model")
+    component, model_yaml, config_lines, _ = readme_blocks("## Your own model")
     (repo / "src/nanosysid/models/components/gru.py").write_text(component)
     (repo / "conf/model/gru.yaml").write_text(model_yaml)
     defaults_line, learned_line = [line for line in config_lines.splitlines() if line.strip()]

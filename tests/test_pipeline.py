@@ -353,7 +353,8 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     model = json.loads((tiny / "discovered" / "model.json").read_text())
     result = json.loads((tiny / "discovery" / "result.json").read_text())
     assert model["format"] == "nanosysid-discovered-1"
-    used = [f["name"] or f["alternatives"][0] for f in result["findings"] if f["verdict"] in ("named", "ambiguous")]
+    used = [f["name"] or f["alternatives"][0] for f in result["findings"]
+            if f["verdict"] in ("named", "ambiguous", "unstable", "undetermined")]
     wrench = [n for n in used if discover_library[n].kind == "wrench"]
     assert [n for n in model["effects"] if not n.startswith("term:")] == wrench
     assert all(f["verdict"] in discover_verdicts for f in result["findings"])
@@ -374,6 +375,10 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     # and it says which k_M its nominal model started from: the identify stage's estimator
     ident = json.loads((tiny / "physics" / "params.json").read_text())
     assert f"k_M by {ident['yaw_fit']['estimator']}" in text
+    # one k_F and one k_M: the identify stage's, in the model and in its report
+    assert model["vehicle"]["k_f"] == ident["k_f"] and model["vehicle"]["k_m"] == ident["k_m"]
+    assert result["k_m"]["given"] == ident["k_m"]
+    assert f"identify stage's ({ident['k_f']:.4g} N s²/rad² and {ident['k_m']:.4g} N m s²/rad²)" in text
     for f in result["findings"]:
         if f["verdict"] == "named":
             assert f"`{f['name']}` named" in text

@@ -15,8 +15,10 @@ Example::
 
 **The nominal model** is ``physics_full`` (rigid body with the torque equation) with k_F and k_M as
 the identify stage found them on the training flights (identified here when no vehicle is
-given); k_F and k_M are refitted alongside every candidate (least squares), and the identify
-stage's k_M is reported beside the refit (``hold_k_m`` holds it instead). **The candidates**
+given). The search judges every candidate with k_F and k_M refitted alongside it (least
+squares, a nuisance fit: a candidate is credited with what it adds, not with the closed-loop
+bias of k_M); the augmented model and every coefficient it reports hold the identify stage's
+k_F and k_M (``hold_nominal``), and the least-squares k_M is reported beside them. **The candidates**
 are the library of :mod:`nanosysid.effects` (knowledge from the literature, several forms of one
 effect where the literature has several, the actuation's lag and battery, and corrections of
 the nominal mass, inertia and arm); this package never imports the simulator's world.
@@ -137,7 +139,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
         oracle: Any = None, limit: Any = None, analysis: bool = True, sindy: bool = False,
         inertia_z_range: tuple[float, float] | None = None, batch_size: int = 8192, flights_out: bool = False,
-        hold_k_m: bool = False, progress: bool = False, diverged_ok: bool = False,
+        hold_k_m: bool = False, hold_nominal: bool = True, progress: bool = False, diverged_ok: bool = False,
         velocity: str = "position") -> DiscoveryResult:
     """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
 
@@ -170,6 +172,10 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             yaw torque's relation to the rotor speeds (a lag of the rotors' wrench) to be fitted
             against a k_M estimated without it, which on simulated worlds with such a lag keeps
             the lag from being named. Both values are reported.
+        hold_nominal: Hold k_F and k_M at the given vehicle's in the model's fits (its
+            coefficients, their intervals, the generic terms) while the search still refits
+            them alongside each candidate: the model and the identify stage then agree on both,
+            and a least-squares k_M, biased on closed-loop flights, enters no prediction.
         progress: A progress bar over those folds.
         diverged_ok: Where the augmented model's rollouts on the test flights are not finite,
             return the verdicts with infinite scores and the reason in ``diverged`` instead of
@@ -193,7 +199,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     if v is None:
         thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)
         v = dataclasses.replace(Vehicle(), k_f=thrust.coef, k_m=yaw.coef)
-    search = Search(train_flights, v, window, order, block, folds, hold_k_m=hold_k_m and vehicle is not None)
+    search = Search(train_flights, v, window, order, block, folds, hold_k_m=hold_k_m and vehicle is not None,
+                    hold_nominal=hold_nominal and vehicle is not None)
     _check_blocks(search, alpha, block)
     delays = tuple(float(d) for d in delays)
     total = float(search.grams(0.0).et.sum())
@@ -238,7 +245,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     result.dropped = [{"entry": pk.name, "history": pk.history} for pk in selection.dropped]
     result.folds = folds_out
     result.pairs = pairs.described([f.name for f in search.flights])
-    result.k_m = {"given": float(v.k_m), "held": bool(search.hold_k_m),
+    result.k_m = {"given": float(v.k_m), "held": bool(search.hold_k_m or search.hold_nominal),
+                  "searched_with": "given" if search.hold_k_m else "least squares",
                   "least_squares": float(v.k_m + search.free_k_m(selection.chosen, selection.delay))}
     if limit is not None:
         result.limit = score(limit)

@@ -26,8 +26,9 @@ def assemble(vehicle: Vehicle, chosen: Sequence[str], coef: dict[str, list[float
              batch_size: int) -> tuple[AugmentedPredictor, Vehicle]:
     """The augmented predictor and its vehicle: k_F, k_M and the chosen corrections refitted,
     the chosen wrench entries, the generic ``terms``, and the rotor speeds delayed by ``delay``
-    s. Generic terms that make the training rollouts diverge are left out (their unnamed
-    findings are marked ``added`` False)."""
+    s. Generic terms that make the training rollouts diverge, or worsen their SimErr in any
+    quantity (a fit of one step on closed-loop flights need not help a rollout), are left out
+    (their unnamed findings are marked ``added`` False)."""
     dk_f, dk_m = coef[NOMINAL.name]
     corrections = {n: LIBRARY[n].values(coef[n], vehicle) for n in chosen if LIBRARY[n].kind == "correction"}
     augmented_vehicle = refitted_vehicle(vehicle, dk_f, dk_m, corrections)
@@ -35,22 +36,28 @@ def assemble(vehicle: Vehicle, chosen: Sequence[str], coef: dict[str, list[float
     named_values = [x for n in named_wrench for x in coef[n]]
     model = AugmentedPredictor(AugmentedStep(augmented_vehicle, named_wrench + list(terms),
                                              named_values + list(terms.values())), delay=delay, name="discovered")
-    if terms and not _stable(model, train_flights, horizon, batch_size):
-        model = AugmentedPredictor(AugmentedStep(augmented_vehicle, named_wrench, named_values), delay=delay,
-                                   name="discovered")
+    if terms:
+        without = AugmentedPredictor(AugmentedStep(augmented_vehicle, named_wrench, named_values), delay=delay,
+                                     name="discovered")
+        if _helps(model, without, train_flights, horizon, batch_size):
+            return model, augmented_vehicle
+        model = without
         for f in findings:
             if f.verdict == "unnamed":
                 f.evidence["added"] = False
     return model, augmented_vehicle
 
 
-def _stable(model: AugmentedPredictor, flights: Sequence[Flight], horizon: int, batch_size: int) -> bool:
-    """Whether the model's rollouts stay finite over every window of ``flights``."""
+def _helps(model: AugmentedPredictor, without: AugmentedPredictor, flights: Sequence[Flight], horizon: int,
+           batch_size: int) -> bool:
+    """Whether the model's rollouts stay finite over every window of ``flights`` and its SimErr
+    is no worse than ``without``'s in any quantity."""
     try:
-        protocol.evaluate(model, flights, horizon=horizon, batch_size=batch_size)
+        with_terms = protocol.evaluate(model, flights, horizon=horizon, batch_size=batch_size).simerr
     except PredictionError:
         return False
-    return True
+    base = protocol.evaluate(without, flights, horizon=horizon, batch_size=batch_size).simerr
+    return all(with_terms[q] <= base[q] for q in QUANTITIES)
 
 
 def sindy_baseline(search: Search, vehicle: Vehicle, test_flights, horizon, batch_size) -> dict[str, Any]:

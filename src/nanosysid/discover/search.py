@@ -23,11 +23,15 @@ class Search:
     """Regression data and block normal equations per delay, built once and shared by every round."""
 
     def __init__(self, flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int, block: float,
-                 folds: int, hold_k_m: bool = False) -> None:
+                 folds: int, hold_k_m: bool = False, hold_nominal: bool = False) -> None:
         self.flights, self.vehicle, self.window, self.order = list(flights), vehicle, window, order
         # k_M as given (the identify stage's, by instrumental variables where it could): a least
         # squares refit on closed-loop flights brings back the bias that estimator removes
         self.hold_k_m = hold_k_m
+        # k_F and k_M as given in the fits the model is made of (fit_grams), while the search
+        # judges each candidate with them refitted alongside
+        self.hold_nominal = hold_nominal
+        self._fit_grams: dict[float, Grams] = {}
         self._parent: Search | None = None
         self._skip = -1
         self.measured = [measured_wrench(f, vehicle, window, order) for f in self.flights]
@@ -66,7 +70,7 @@ class Search:
         sub._blocks_kept = np.unique(old)
         sub.blocks = np.searchsorted(sub._blocks_kept, old)
         sub.folds = min(self.folds, len(sub._blocks_kept) // 2)
-        sub._data, sub._grams, sub._terms = {}, {}, {}
+        sub._data, sub._grams, sub._terms, sub._fit_grams = {}, {}, {}, {}
         return sub
 
     def data(self, delay: float) -> list[FlightData]:
@@ -89,6 +93,20 @@ class Search:
             g = Grams(X, y, self.weights, self.blocks, self.folds)
             self._grams[key] = g.fixed(int(self.offsets[NOMINAL.name][1]), 0.0) if self.hold_k_m else g
         return self._grams[key]
+
+    def fit_grams(self, delay: float) -> Grams:
+        """The normal equations the model's coefficients are fitted with: :meth:`grams`, with k_F
+        and k_M held at the given vehicle's where ``hold_nominal``."""
+        if not self.hold_nominal:
+            return self.grams(delay)
+        key = round(float(delay), 6)
+        if key not in self._fit_grams:
+            g = self.grams(key)
+            for col in self.offsets[NOMINAL.name]:
+                if int(col) not in g.fixed_values:
+                    g = g.fixed(int(col), 0.0)
+            self._fit_grams[key] = g
+        return self._fit_grams[key]
 
     def free_k_m(self, names: Sequence[str], delay: float) -> float:
         """The k_M correction a least-squares refit alongside ``names`` would make (N m s²/rad²),
@@ -122,9 +140,10 @@ class Search:
     def cols(self, names: Sequence[str]) -> np.ndarray:
         return np.concatenate([self.offsets[n] for n in [NOMINAL.name, *names]])
 
-    def residual(self, names: Sequence[str], delay: float) -> tuple[np.ndarray, np.ndarray]:
-        """Weighted residual left by ``names`` fitted on every block ``(N, 6)``, and the coefficients."""
-        g = self.grams(delay)
+    def residual(self, names: Sequence[str], delay: float, *, model: bool = False) -> tuple[np.ndarray, np.ndarray]:
+        """Weighted residual left by ``names`` fitted on every block ``(N, 6)``, and the
+        coefficients; ``model``: fitted as the model's coefficients are (:meth:`fit_grams`)."""
+        g = self.fit_grams(delay) if model else self.grams(delay)
         cols = self.cols(names)
         theta = g.solve(cols)
         d = self.data(delay)

@@ -53,7 +53,7 @@ def leave_one_flight_out(search: Search, selection: Selection, vehicle: Vehicle,
         if sel.delay:
             offered.add(DELAY.name)
         cols = sub.cols(selection.chosen)
-        g = true_torque_grams(sub, sub.grams(selection.delay), selection.chosen, cols, vehicle)
+        g = true_torque_grams(sub, sub.fit_grams(selection.delay), selection.chosen, cols, vehicle)
         theta = split_coefficients(names, g.solve(cols))
         coef = {n: LIBRARY[n].values(theta[n], vehicle) for n in selection.chosen}
         rows.append({"flight": search.flights[k].name, "chosen": list(sel.chosen), "offered": sorted(offered),

@@ -62,7 +62,7 @@ def coefficients(search: Search, selection: Selection, vehicle: Vehicle,
     with the yaw inertia held at each end of it are rivals too: the flights tell the yaw
     torques' ratios to J_z, so k_M's refit and a rotor inertia move with it."""
     chosen, delay = selection.chosen, selection.delay
-    g = search.grams(delay)
+    g = search.fit_grams(delay)
     cols = search.cols(chosen)
     measured = g.solve(cols)
     g = true_torque_grams(search, g, chosen, cols, vehicle)
@@ -75,12 +75,12 @@ def coefficients(search: Search, selection: Selection, vehicle: Vehicle,
     rival_coef, rival_folds = [], []
     for n in rivals:
         alt_cols = search.cols(chosen + [n])
-        alt_g = true_torque_grams(search, search.grams(delay), chosen + [n], alt_cols, vehicle)
+        alt_g = true_torque_grams(search, search.fit_grams(delay), chosen + [n], alt_cols, vehicle)
         rival_coef.append(split_coefficients(names + [n], alt_g.solve(alt_cols)))
         rival_folds.append([split_coefficients(names + [n], t) for t in alt_g.heldout(alt_cols)[1]])
     if INERTIA in chosen and inertia_z_range is not None:
         for jz in inertia_z_range:
-            alt_g = true_torque_grams(search, search.grams(delay), chosen, cols, vehicle, yaw_inertia=float(jz))
+            alt_g = true_torque_grams(search, search.fit_grams(delay), chosen, cols, vehicle, yaw_inertia=float(jz))
             rival_coef.append(split_coefficients(names, alt_g.solve(cols)))
             rival_folds.append([split_coefficients(names, t) for t in alt_g.heldout(cols)[1]])
     return Coefficients(names, split_coefficients(names, theta), [split_coefficients(names, t) for t in thetas],
@@ -203,7 +203,7 @@ def unnamed(search: Search, selection: Selection, *, alpha: float, floor: float,
     """Channel by channel, the generic sparse fit of the residual the chosen entries leave: an
     unnamed finding where it captures significantly more than nothing (Bonferroni over the six
     channels) by at least ``floor`` noise floors."""
-    resid, _ = search.residual(selection.chosen, selection.delay)
+    resid, _ = search.residual(selection.chosen, selection.delay, model=True)
     lib, terms = search.terms(selection.delay)
     gains = generic.heldout_gain(terms, resid, search.blocks, search.grams(selection.delay).fold)
     n_samples = len(search.blocks)
