@@ -2,6 +2,7 @@
 
 import json
 import os
+import signal
 import subprocess
 import sys
 import threading
@@ -157,6 +158,59 @@ def test_a_failing_stage_stops_the_run_with_its_log_and_runs_nothing_after_it(tm
     assert "stage c failed" in r.stderr and "stage c broke on purpose" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert (root / "b.txt").exists() and not (root / "d.txt").exists() and not (root / "rec.json").exists()
+
+
+@pytest.mark.parametrize("sig, after", [(signal.SIGINT, 1.5), (signal.SIGINT, 4.0), (signal.SIGTERM, 3.0)])
+def test_an_interrupted_run_leaves_dvc_lock_whole_and_the_next_one_goes_on(tmp_path, env, sig, after):
+    import yaml
+
+    root = tmp_path / "toy"
+    _toy_repo(root, env)
+    runner = subprocess.Popen([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
+                              cwd=root, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(after)  # DVC starting, or b and c running
+    runner.send_signal(sig)
+    out, err = runner.communicate(timeout=120)
+    assert runner.returncode in (0, 130) and "Traceback" not in err, err
+    if runner.returncode == 130:
+        assert "interrupted" in err and not (root / "rec.json").exists()
+    lock = root / "dvc.lock"
+    if lock.exists():
+        assert isinstance(yaml.safe_load(lock.read_text())["stages"], dict)
+    # no stage's call outlives the runner: nothing is written after it has returned
+    written = {f: f.stat().st_mtime_ns for f in root.glob("*.txt")}
+    time.sleep(2.5)
+    assert {f: f.stat().st_mtime_ns for f in root.glob("*.txt")} == written
+    again = _repro(root, env)
+    assert again.returncode == 0, again.stdout + again.stderr
+    status = subprocess.run([sys.executable, "-m", "dvc", "status"], cwd=root, env=env, capture_output=True, text=True)
+    assert "up to date" in status.stdout, status.stdout
+
+
+def test_a_lock_file_cut_short_is_put_back_from_its_last_whole_copy(tmp_path):
+    from nanosysid.repro import keep_whole, repair_lock
+
+    lock, good = tmp_path / "dvc.lock", tmp_path / "whole" / "dvc.lock"
+    whole = "schema: '2.0'\nstages:\n  a:\n    cmd: python a.py\n"
+    lock.write_text(whole)
+    keep_whole(lock, good)
+    assert good.read_text() == whole and not repair_lock(lock, good)  # a whole file is left alone
+    for cut in ("schema: '2.0'\nstages:\n  a:\n    cmd: pyth", "", "schema: '2.0'\nstages:\n  a: [b\n"):
+        lock.write_text(cut)
+        keep_whole(lock, good)  # a cut file is never kept
+        assert good.read_text() == whole
+        assert repair_lock(lock, good) and lock.read_text() == whole
+
+
+def test_dvcs_rwlock_cut_short_is_removed_and_a_whole_one_kept(tmp_path):
+    from nanosysid.repro import repair_rwlock
+
+    rw = tmp_path / "rwlock"
+    rw.write_text('{"read": {}, "write": {"a.txt": {"pid": 1, "cmd": "dvc repro"}}}')
+    assert not repair_rwlock(rw) and rw.exists()
+    rw.write_text('{"read": {}, "wri')
+    assert repair_rwlock(rw) and not rw.exists()
+    assert not repair_rwlock(rw)  # none at all: nothing to do
 
 
 def test_make_repro_and_make_test_write_no_tracked_file_and_install_nothing():

@@ -21,6 +21,14 @@ stage's bytes never depend on what runs beside it (each stage pins its own threa
 - each stage's output goes to ``.dvc/tmp/repro/<stage>.log``; the console shows one line a
   stage and a progress bar, and the end of the log of a stage that fails.
 
+An interruption (Ctrl-C, SIGINT or SIGTERM to the runner) stops the running stages through DVC's
+own handling of SIGINT (each stage's call runs in its own session, so it gets the signal once,
+from the runner), waits for them, and leaves ``dvc.lock`` whole: a copy is kept each time a
+stage ends with the file whole, and a file cut short by the interruption is put back from it;
+DVC's ``.dvc/tmp/rwlock`` cut short is removed.
+The next ``make repro`` goes on from there (the stages that were stopped run again, or come
+from DVC's run cache).
+
 When every stage succeeds it writes the record of :mod:`nanosysid.report.runtimes` (each stage's
 seconds, from its call's start to its end, the stages skipped or restored from the run cache,
 and the total), with ``jobs``.
@@ -28,27 +36,45 @@ and the total), with ``jobs``.
 
 from __future__ import annotations
 
-import argparse
-import heapq
-import itertools
-import json
-import os
-import subprocess
+import signal
 import sys
-import time
-from collections import deque
-from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait
-from dataclasses import dataclass
-from pathlib import Path
-from typing import Callable, Mapping
 
-from tqdm import tqdm
 
-from nanosysid.report.runtimes import SKIPPED, write_record
+def _quit_starting(signum, frame):
+    # an interruption before any stage has started: nothing to stop, nothing written
+    print("\ninterrupted before any stage started", file=sys.stderr)
+    raise SystemExit(130)
 
-__all__ = ["StageRun", "stage_graph", "critical_order", "best_order", "makespan", "run_graph", "main"]
+
+if __name__ == "__main__":  # from the start, not once the imports below are done
+    signal.signal(signal.SIGINT, _quit_starting)
+    signal.signal(signal.SIGTERM, _quit_starting)
+
+import argparse  # noqa: E402
+import heapq  # noqa: E402
+import itertools  # noqa: E402
+import json  # noqa: E402
+import os  # noqa: E402
+import subprocess  # noqa: E402
+import threading  # noqa: E402
+import time  # noqa: E402
+from collections import deque  # noqa: E402
+from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait  # noqa: E402
+from dataclasses import dataclass  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Callable, Mapping  # noqa: E402
+
+from tqdm import tqdm  # noqa: E402
+
+from nanosysid.report.runtimes import SKIPPED, write_record  # noqa: E402
+
+__all__ = ["StageRun", "stage_graph", "critical_order", "best_order", "makespan", "run_graph", "keep_whole",
+           "repair_lock", "repair_rwlock", "main"]
 
 LOG_DIR = Path(".dvc/tmp/repro")
+LOCK = Path("dvc.lock")
+GOOD_LOCK = LOG_DIR / "dvc.lock.whole"  # the last dvc.lock seen whole
+STOP_GRACE_S = 60.0  # how long an interrupted stage's call has to stop before it is killed
 
 
 @dataclass(frozen=True)
@@ -139,7 +165,8 @@ def best_order(upstream: Mapping[str, set[str]], seconds: Mapping[str, float], *
 
 def run_graph(upstream: Mapping[str, set[str]], run: Callable[[str], StageRun], *, jobs: int = 2,
               order: list[str] | None = None, progress: bool = True,
-              say: Callable[[str], None] = print) -> tuple[dict[str, StageRun], str | None]:
+              say: Callable[[str], None] = print,
+              stop: Callable[[], None] | None = None) -> tuple[dict[str, StageRun], str | None]:
     """Run every stage once all those it depends on have succeeded, at most ``jobs`` at a time,
     in ``order`` among the ready ones.
 
@@ -147,6 +174,8 @@ def run_graph(upstream: Mapping[str, set[str]], run: Callable[[str], StageRun], 
         upstream: Each stage and the stages it depends on.
         run: Runs one stage (in a thread of this process) and says how it ended.
         order: The priority of the stages (default: their names' order).
+        stop: Stops the running stages when the run is interrupted (KeyboardInterrupt), before
+            it waits for them; the interruption is raised again once they have ended.
 
     Returns:
         What each stage that ran did, and the first stage that failed (None if none did); after
@@ -162,24 +191,29 @@ def run_graph(upstream: Mapping[str, set[str]], run: Callable[[str], StageRun], 
     start = time.monotonic()
     bar = tqdm(total=len(upstream), desc="repro", unit="stage", disable=not progress, file=sys.stderr)
     with ThreadPoolExecutor(max_workers=max(1, int(jobs))) as pool:
-        while True:
-            if failed is None:
-                for s in _ready(upstream, done, set(running.values()), rank)[: max(1, int(jobs)) - len(running)]:
-                    say(f"[{time.monotonic() - start:7.1f} s] {s}: running")
-                    running[pool.submit(run, s)] = s
-            if not running:
-                break
-            bar.set_postfix_str(", ".join(sorted(running.values())))
-            finished, _ = wait(list(running), return_when=FIRST_COMPLETED)
-            for f in finished:
-                s = running.pop(f)
-                r = f.result()
-                done[s] = r
-                bar.update()
-                what = "skipped" if r.skipped else ("done" if r.rc == 0 else f"FAILED (exit {r.rc})")
-                say(f"[{time.monotonic() - start:7.1f} s] {s}: {what} in {r.seconds:.1f} s")
-                if r.rc != 0 and failed is None:
-                    failed = s
+        try:
+            while True:
+                if failed is None:
+                    for s in _ready(upstream, done, set(running.values()), rank)[: max(1, int(jobs)) - len(running)]:
+                        say(f"[{time.monotonic() - start:7.1f} s] {s}: running")
+                        running[pool.submit(run, s)] = s
+                if not running:
+                    break
+                bar.set_postfix_str(", ".join(sorted(running.values())))
+                finished, _ = wait(list(running), return_when=FIRST_COMPLETED)
+                for f in finished:
+                    s = running.pop(f)
+                    r = f.result()
+                    done[s] = r
+                    bar.update()
+                    what = "skipped" if r.skipped else ("done" if r.rc == 0 else f"FAILED (exit {r.rc})")
+                    say(f"[{time.monotonic() - start:7.1f} s] {s}: {what} in {r.seconds:.1f} s")
+                    if r.rc != 0 and failed is None:
+                        failed = s
+        except KeyboardInterrupt:  # the running stages stopped before the pool waits for them
+            if stop is not None:
+                stop()
+            raise
     bar.close()
     missing = [s for s in upstream if s not in done]
     if failed is None and missing:  # a cycle: DVC refuses those before this runs
@@ -187,17 +221,117 @@ def run_graph(upstream: Mapping[str, set[str]], run: Callable[[str], StageRun], 
     return done, failed
 
 
-def _dvc_stage(env: Mapping[str, str], log_dir: Path) -> Callable[[str], StageRun]:
-    def run(stage: str) -> StageRun:
-        log = log_dir / (stage.replace("/", "_") + ".log")
+class _DvcStages:
+    """Runs one stage as a ``dvc repro`` call in a session of its own (a terminal's Ctrl-C
+    reaches only the runner, which passes it on once: :meth:`stop`), keeping a copy of
+    ``dvc.lock`` each time a call ends with it whole."""
+
+    def __init__(self, env: Mapping[str, str], log_dir: Path, lock: Path = LOCK, good: Path = GOOD_LOCK) -> None:
+        self.env, self.log_dir, self.lock, self.good = dict(env), log_dir, lock, good
+        self._live: set[subprocess.Popen] = set()
+        self._guard = threading.Lock()
+        self.stopping = False
+        keep_whole(lock, good)
+
+    def __call__(self, stage: str) -> StageRun:
+        log = self.log_dir / (stage.replace("/", "_") + ".log")
         t0 = time.monotonic()
         with log.open("w") as out:
-            rc = subprocess.call([sys.executable, "-m", "dvc", "--wait-for-lock", "repro", "--single-item", stage],
-                                 stdout=out, stderr=subprocess.STDOUT, env=dict(env))
+            with self._guard:
+                if self.stopping:
+                    return StageRun(130, 0.0)
+                proc = subprocess.Popen([sys.executable, "-m", "dvc", "--wait-for-lock", "repro", "--single-item",
+                                         stage], stdout=out, stderr=subprocess.STDOUT, env=self.env,
+                                        start_new_session=True)
+                self._live.add(proc)
+            rc = proc.wait()
+            with self._guard:
+                self._live.discard(proc)
+        keep_whole(self.lock, self.good)
         seconds = round(time.monotonic() - t0, 1)
         return StageRun(rc, seconds, skipped=bool(SKIPPED.search(log.read_text(errors="replace"))))
 
-    return run
+    def stop(self, grace: float = STOP_GRACE_S) -> None:
+        """SIGINT to every running call (DVC stops its stage and records nothing of it), then
+        SIGKILL to those still running after ``grace`` seconds."""
+        with self._guard:
+            self.stopping = True
+            live = list(self._live)
+        for proc in live:
+            _signal_group(proc, signal.SIGINT)
+        deadline = time.monotonic() + grace
+        for proc in live:
+            try:
+                proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+            except (subprocess.TimeoutExpired, KeyboardInterrupt):  # too slow, or a second Ctrl-C
+                for p in live:
+                    _signal_group(p, signal.SIGKILL)
+                for p in live:
+                    p.wait()
+                return
+
+
+def _signal_group(proc: subprocess.Popen, sig: int) -> None:
+    try:
+        os.killpg(proc.pid, sig)
+    except ProcessLookupError:  # it has ended
+        pass
+
+
+def _whole(text: str) -> bool:
+    """Whether ``text`` is a whole lock file: it parses, holds DVC's ``stages`` mapping and ends
+    its last line."""
+    import yaml
+
+    try:
+        data = yaml.safe_load(text)
+    except yaml.YAMLError:
+        return False
+    return isinstance(data, dict) and isinstance(data.get("stages"), dict) and text.endswith("\n")
+
+
+def keep_whole(lock: Path = LOCK, good: Path = GOOD_LOCK) -> None:
+    """Copy ``lock`` to ``good`` where it is whole (nothing where it is absent or cut short)."""
+    try:
+        text = lock.read_text()
+    except FileNotFoundError:
+        return
+    if _whole(text):
+        good.parent.mkdir(parents=True, exist_ok=True)
+        tmp = good.with_name(good.name + ".tmp")
+        tmp.write_text(text)
+        tmp.replace(good)
+
+
+def repair_lock(lock: Path = LOCK, good: Path = GOOD_LOCK) -> bool:
+    """Put back the last whole copy where ``lock`` is cut short; True where it did."""
+    if not lock.exists() or _whole(lock.read_text(errors="replace")) or not good.exists():
+        return False
+    tmp = lock.with_name(lock.name + ".tmp")
+    tmp.write_text(good.read_text())
+    tmp.replace(lock)
+    return True
+
+
+RWLOCK = Path(".dvc/tmp/rwlock")  # DVC's record of the paths its running commands read and write
+
+
+def repair_rwlock(rwlock: Path = RWLOCK) -> bool:
+    """Remove DVC's ``rwlock`` where an interruption cut it short (it no longer parses as JSON:
+    every later DVC command would refuse to start); once the runner's calls have all ended no
+    command of this run holds a path. True where it did."""
+    try:
+        json.loads(rwlock.read_text(errors="replace"))
+        return False
+    except FileNotFoundError:
+        return False
+    except ValueError:
+        rwlock.unlink()
+        return True
+
+
+def _interrupt(signum, frame):  # SIGTERM ends the run as Ctrl-C does
+    raise KeyboardInterrupt
 
 
 def _last_times(path: Path) -> dict[str, float]:
@@ -254,12 +388,20 @@ def main(argv: list[str] | None = None) -> int:
     env = dict(os.environ)
     if a.jobs > 1:
         env["OMP_WAIT_POLICY"] = "PASSIVE"
+    stages = _DvcStages(env, LOG_DIR)
     t0 = time.monotonic()
+    # an interruption is the runner's to pass on, also where its starter ignores SIGINT (`make repro &`)
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.signal(signal.SIGTERM, _interrupt)
     try:
-        done, failed = run_graph(upstream, _dvc_stage(env, LOG_DIR), jobs=a.jobs, order=order)
-    except KeyboardInterrupt:  # the stages got it too: DVC stops each and records none of them
-        print("\ninterrupted: the stages that were running stopped unrecorded; `make repro` again goes on "
-              "from there", file=sys.stderr)
+        done, failed = run_graph(upstream, stages, jobs=a.jobs, order=order, stop=stages.stop)
+    except KeyboardInterrupt:
+        stages.stop()
+        put_back, cleared = repair_lock(), repair_rwlock()
+        print("\ninterrupted: the stages that were running stopped unrecorded"
+              + ("; dvc.lock, cut short, was put back as it was after the last stage that ended" if put_back else "")
+              + ("; DVC's .dvc/tmp/rwlock, cut short, was removed" if cleared else "")
+              + "; `make repro` again goes on from there", file=sys.stderr)
         return 130
     total = round(time.monotonic() - t0, 1)
     if failed is not None:
