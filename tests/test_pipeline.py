@@ -233,6 +233,8 @@ def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
         assert [float(c.strip("*")) for c in cells] == pytest.approx(expected, abs=5e-5)
     assert any("**" in c for c in rows["physics"] + rows["phys_res"] + rows["naive"])
     assert not any(c.startswith("**") for c in rows["oracle (physical limit)"])
+    # the discovered row says which row it builds on, so its gap to the paper's physics row reads right
+    assert "read it against `physics_full`" in text
     costs = md_table(text, "## Cost of one step")
     for m in LEARNED:
         summary = json.loads((tiny / "train" / m / "summary.json").read_text())
