@@ -139,9 +139,11 @@ def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> 
         raise ConfigError(f"{path}: not found; run `make params` to compose it from conf/")
     cfg = OmegaConf.load(path)
     overrides = renamed(overrides)
+    rest = select_groups(cfg, overrides)  # an unknown group option is refused here, by name
     if overrides:
-        rederive(cfg, _root_of(path), [o for o in overrides if _is_group_choice(o)])
-    cfg = apply_overrides(cfg, select_groups(cfg, overrides))
+        rederive(cfg, _root_of(path), [o for o in overrides if o not in rest],
+                 addressed=[o.partition("=")[0].lstrip("+~") for o in rest])
+    cfg = apply_overrides(cfg, rest)
     OmegaConf.resolve(cfg)
     check_values(OmegaConf.to_container(cfg), f"{path}{' with overrides' if overrides else ''}")
     return cfg
@@ -170,16 +172,25 @@ def interpolations(root: str = "config", groups: Sequence[str] = (), *, conf_dir
     return {k: v for k, v in leaves(raw) if isinstance(v, str) and "${" in v}
 
 
-def rederive(cfg: DictConfig, root: str = "config", groups: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) -> list[str]:
+def rederive(cfg: DictConfig, root: str = "config", groups: Sequence[str] = (), *, addressed: Sequence[str] = (),
+             conf_dir: Path = CONF_DIR) -> list[str]:
     """Put back the interpolation of every setting of ``cfg`` (a resolved ``params.yaml``) that
     holds the value ``conf/`` derives for it, so that an override of what it is derived from
     (``identify.out_dir=x``) reaches it (``models.physics.identified``: ``x/params.json``), as it
-    would have on composing. A setting given its own value (``dvc exp run -S``) keeps it. Returns
-    the settings put back; none without a ``conf/``."""
+    would have on composing. A setting given its own value (``dvc exp run -S``) keeps it, and so
+    does one inside which an override of ``addressed`` sets a key (``discover.oracle.dt``).
+    Returns the settings put back; none without a ``conf/``."""
+    from hydra.errors import HydraException
+
     if not (Path(conf_dir) / f"{root}.yaml").is_file():
         return []
-    derived = {k: v for k, v in interpolations(root, groups, conf_dir=conf_dir).items()
-               if OmegaConf.select(cfg, k, default=_ABSENT) is not _ABSENT}
+    try:
+        template = interpolations(root, groups, conf_dir=conf_dir)
+    except HydraException:  # a composition conf/ cannot make: the file's values stand
+        return []
+    derived = {k: v for k, v in template.items()
+               if OmegaConf.select(cfg, k, default=_ABSENT) is not _ABSENT
+               and not any(a.startswith(k + ".") for a in addressed)}
     trial = cfg.copy()
     for key, text in derived.items():
         OmegaConf.update(trial, key, text, merge=False, force_add=True)
