@@ -26,8 +26,8 @@ from omegaconf import DictConfig, OmegaConf
 from nanosysid.errors import ConfigError
 from nanosysid.settings import describe, fits, kind_of, leaves
 
-__all__ = ["compose", "compose_text", "load_params", "rederive", "interpolations", "select_groups", "apply_overrides", "check_values",
-           "renamed", "RENAMED"]
+__all__ = ["compose", "compose_text", "load_params", "rederive", "interpolations", "select_groups", "apply_overrides",
+           "check_values", "renamed", "RENAMED"]
 
 # relative to the working directory: stages run from the root of the project they belong to
 # (DVC runs them there, also in the temporary copies of `dvc exp run`)
@@ -152,11 +152,6 @@ def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> 
 def _root_of(path: Path) -> str:
     """The root config ``path`` is composed from (``params-rig.yaml``: ``rig``)."""
     return next((root for root, p in ROOTS.items() if Path(path).name == p.name), "config")
-
-
-def _is_group_choice(override: str) -> bool:
-    key, eq, _ = override.partition("=")
-    return bool(eq) and key.isidentifier() and (CONF_DIR / key).is_dir()
 
 
 def interpolations(root: str = "config", groups: Sequence[str] = (), *, conf_dir: Path = CONF_DIR) -> dict[str, str]:

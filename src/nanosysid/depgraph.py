@@ -5,8 +5,9 @@ Imports are read from the source (``ast``), lazy imports inside functions includ
 followed through the project's own modules (``nanosysid`` and ``stages``); importing a
 submodule runs its packages' ``__init__`` too, and a package that imports its modules by name
 (``importlib.import_module(f"{__name__}.{name}")``, the networks) counts as importing all of
-them. A stage depends on exactly those files, so an edit reruns the stages that run the edited
-code and no other.
+them, except in a stage that runs one model (:data:`ONE_MODEL`), whose dvc.yaml entry names that
+model's own code. A stage depends on exactly those files, so an edit reruns the stages that run
+the edited code and no other.
 
 Command line::
 
@@ -62,12 +63,6 @@ ONE_MODEL = ("stages.train", "stages.evaluate", "stages.export", "stages.mcu")
 
 
 @lru_cache(maxsize=None)
-def direct_imports(path: Path, root: Path = ROOT) -> frozenset[str]:
-    """Project modules a file imports anywhere in its body, and those its package loads by name."""
-    return _static_imports(path, root) | by_name(path, root)
-
-
-@lru_cache(maxsize=None)
 def by_name(path: Path, root: Path = ROOT) -> frozenset[str]:
     """The modules a package's ``__init__`` loads by name
     (``importlib.import_module(f"{__name__}.{name}")``, the networks): all of its modules."""
@@ -79,7 +74,9 @@ def by_name(path: Path, root: Path = ROOT) -> frozenset[str]:
 
 
 @lru_cache(maxsize=None)
-def _static_imports(path: Path, root: Path = ROOT) -> frozenset[str]:
+def direct_imports(path: Path, root: Path = ROOT) -> frozenset[str]:
+    """Project modules a file imports anywhere in its body (those its package loads by name are
+    :func:`by_name`'s)."""
     names: set[str] = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
         if isinstance(node, ast.Import):
@@ -108,12 +105,12 @@ def imported_files(module: str, root: Path = ROOT, *, loaded_by_name: bool = Tru
             continue
         seen.add(m)
         f = module_file(m, root)
-        todo.extend(_static_imports(f, root))
+        todo.extend(direct_imports(f, root))
         for n in by_name(f, root):
             if loaded_by_name:
                 todo.append(n)
             elif module_file(n, root):
-                todo.extend(_static_imports(module_file(n, root), root))
+                todo.extend(direct_imports(module_file(n, root), root))
     return {module_file(m, root) for m in seen}
 
 
