@@ -283,8 +283,11 @@ def _whole(text: str) -> bool:
     its last line."""
     import yaml
 
+    # libyaml's loader where there is one: a pipeline's dvc.lock takes the pure-Python one over a
+    # second, once a stage ends
+    loader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
     try:
-        data = yaml.safe_load(text)
+        data = yaml.load(text, Loader=loader)
     except yaml.YAMLError:
         return False
     return isinstance(data, dict) and isinstance(data.get("stages"), dict) and text.endswith("\n")
