@@ -6,7 +6,7 @@ from pathlib import Path
 from omegaconf import DictConfig
 
 from nanosysid import identify, protocol
-from nanosysid.dataio import parse_flight_name, read_flight_csv
+from nanosysid.dataio import flight_catalog, parse_flight_name, read_flight_csv
 from nanosysid.errors import DataError
 from nanosysid.viz.identify import identify_figure
 from stages.common import run_stage, vehicle_of
@@ -47,16 +47,12 @@ def main(cfg: DictConfig) -> None:
 
 
 def calibration_flights(folder: Path, trajectories: list[str]) -> list:
-    """The flights of ``folder`` (searched below it) whose trajectory is one of ``trajectories``."""
-    found = []
-    for f in sorted(folder.rglob("*.csv")) if folder.is_dir() else []:
-        try:
-            trajectory, _ = parse_flight_name(f.stem)
-        except ValueError:
-            continue
-        if trajectory in trajectories:
-            found.append(read_flight_csv(f))
-    return found
+    """The flights of ``folder`` (searched below it, named as the split names them) whose
+    trajectory is one of ``trajectories``."""
+    if not trajectories or not folder.is_dir():
+        return []
+    return [read_flight_csv(f.path, name=f.name) for f in flight_catalog(folder)
+            if parse_flight_name(f.name)[0] in trajectories]
 
 
 if __name__ == "__main__":

@@ -14,9 +14,7 @@ from nanosysid.report import tables
 from nanosysid.report.paper import PAPER_STATS
 from nanosysid.report.stats import STAT_LABELS, trajectory_stats
 from nanosysid.viz import figures
-from nanosysid.viz.signals import ahead
-from nanosysid.predictors import build_from_options
-from stages.common import model_options, pick_flight, run_stage
+from stages.common import pick_flight, run_stage
 
 log = logging.getLogger("nanosysid.report")
 
@@ -56,8 +54,13 @@ def main(cfg: DictConfig) -> None:
     lo, hi = (inside[0], inside[-1]) if len(inside) else (0, len(flight) - 1)
     margin = int(rc.lineplot.smooth)
     starts = np.arange(max(lo - margin - H, 0), min(hi + margin - H + 1, len(flight) - H))
-    ahead_rows = {name: ahead(protocol.predictions(p, flight, horizon=H, starts=starts), H, len(flight), starts)
-                  for name, p in ((n, build_from_options(model_options(cfg, n))) for n in shown)}
+    # the H-step-ahead predictions the evaluate stage kept while scoring: no model rolled out again
+    ahead_rows = {}
+    for n in shown:
+        last = protocol.load_kept(Path(cfg.paths.eval) / n / "rollouts", [flight], horizon=H,
+                                  stage=f"evaluate {n}")[flight.name].last
+        ahead_rows[n] = np.full((len(flight), 13), np.nan)
+        ahead_rows[n][starts + H] = last[starts]
     figures.predictions_figure(flight, ahead_rows, fig_dir / "predictions.png", horizon=H,
                                window=(a, b), smooth=int(rc.lineplot.smooth))
     figures.trajectory_stats_figure(trajectory_stats(bench.train + bench.test), PAPER_STATS, STAT_LABELS,

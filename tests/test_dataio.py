@@ -10,6 +10,7 @@ import pytest
 from nanosysid import protocol, synthetic
 from nanosysid.dataio import OWNER, atomic_dir, atomic_file, json_text, read_flight_csv, write_flight_csv
 from nanosysid.errors import ConfigError, DataError
+from nanosysid.splitting import split_folder
 
 
 @pytest.fixture
@@ -246,11 +247,6 @@ def test_a_flight_in_train_and_test_is_refused(dataset):
 
 def test_file_names_links_and_folders_are_checked(dataset):
     root, _ = dataset
-    bad = root / "train" / "my flight.csv"
-    bad.write_bytes((root / "train" / "square_d_run1.csv").read_bytes())
-    with pytest.raises(DataError, match=r"my flight.csv: flight name 'my flight' is not of the form"):
-        protocol.load(root)
-    bad.unlink()
     (root / "train" / "chirp_d_run2.csv").symlink_to(root / "nowhere.csv")
     with pytest.raises(DataError, match=r"chirp_d_run2.csv: no such file \(a broken link\)"):
         protocol.load(root)
@@ -258,6 +254,68 @@ def test_file_names_links_and_folders_are_checked(dataset):
     (root / "train" / "chirp_d_run3.csv").mkdir()
     with pytest.raises(DataError, match=r"chirp_d_run3.csv: a folder, not a flight CSV file"):
         protocol.load(root)
+
+
+def own_flights(root, names, parts=None):
+    """Flights of the schema written under ``root`` with the given file names (distinct samples)."""
+    flights = synthetic.synthetic_flights([f"f_d_run{i}" for i in range(len(names))], 40, seed=3)
+    for name, f in zip(names, flights):
+        write_flight_csv(f, root / name)
+    return flights
+
+
+def test_flights_of_any_name_in_a_train_and_test_layout_are_named_from_the_file(tmp_path):
+    own_flights(tmp_path / "mine", ["train/Hover 03.csv", "train/loop.csv", "test/Figure_Eight-run2.csv"])
+    bench = protocol.load(tmp_path / "mine", horizon=10)
+    assert [(f.name, f.trajectory, f.run) for f in bench.train] == [("hover_own_run3", "hover", 3),
+                                                                    ("loop_own_run1", "loop", 1)]
+    assert [(f.trajectory, f.run) for f in bench.test] == [("figure-eight", 2)]
+    # the split follows the folders where no list names the trajectory, and writes the names every
+    # later stage reads trajectory and run from
+    summary = split_folder(tmp_path / "mine", tmp_path / "split", train=["square"], test=["melon"], horizon=10)
+    assert sorted(p.name for p in (tmp_path / "split" / "train").iterdir()) == ["hover_own_run3.csv", "loop_own_run1.csv"]
+    assert list(summary["test"]["flights"]) == ["figure-eight_own_run2"]
+    # a list still moves a trajectory across the folders (an ablation of the split)
+    split_folder(tmp_path / "mine", tmp_path / "split2", train=["figure-eight"], test=["loop"], horizon=10)
+    assert sorted(p.name for p in (tmp_path / "split2" / "test").iterdir()) == ["loop_own_run1.csv"]
+    assert "figure-eight_own_run2.csv" in {p.name for p in (tmp_path / "split2" / "train").iterdir()}
+
+
+def test_a_flat_folder_of_free_names_is_refused_with_the_ways_to_name_them(tmp_path):
+    own_flights(tmp_path / "flat", ["my flight.csv", "melon_d_run1.csv"])
+    with pytest.raises(DataError, match=r"my flight.csv: flight name 'my flight' is not of the form .*manifest.csv"):
+        split_folder(tmp_path / "flat", tmp_path / "split", train=["x"], test=["melon"], horizon=10)
+    assert not (tmp_path / "split").exists()
+
+
+def test_a_manifest_names_trajectory_run_and_part_of_each_file(tmp_path):
+    own_flights(tmp_path / "m", ["a.csv", "b.csv", "sub/c.csv"])
+    (tmp_path / "m" / "manifest.csv").write_text("file,trajectory,run,part\na.csv,Spiral,2,\nb.csv,spiral,5,\n"
+                                                  "sub/c.csv,dive,1,test\n")
+    split_folder(tmp_path / "m", tmp_path / "split", train=["spiral"], test=[], horizon=10)
+    assert sorted(p.name for p in (tmp_path / "split" / "train").iterdir()) == ["spiral_own_run2.csv",
+                                                                               "spiral_own_run5.csv"]
+    assert [p.name for p in (tmp_path / "split" / "test").iterdir()] == ["dive_own_run1.csv"]
+    bench = protocol.load(tmp_path / "split", horizon=10)
+    assert [(f.trajectory, f.run) for f in bench.train] == [("spiral", 2), ("spiral", 5)]
+
+
+@pytest.mark.parametrize("manifest,words", [
+    ("file,trajectory\na.csv,x\n", r"manifest.csv: missing column\(s\) 'run'"),
+    ("file,trajectory,run\na.csv,x,two\nb.csv,x,2\n", r"manifest.csv: row 1 \(line 2\), field 'run': 'two' is not a whole"),
+    ("file,trajectory,run\na.csv,x,1\nb.csv,9lives,2\n", r"row 2 \(line 3\), field 'trajectory': '9lives' is not a name"),
+    ("file,trajectory,run,part\na.csv,x,1,val\nb.csv,x,2,\n", r"field 'part': 'val' is neither 'train' nor 'test'"),
+    ("file,trajectory,run\na.csv,x,1\n", r"b.csv: not listed in .*manifest.csv"),
+    ("file,trajectory,run\na.csv,x,1\nb.csv,x,2\nc.csv,x,3\n", r"manifest.csv: row for file 'c.csv': no such flight file"),
+    ("file,trajectory,run\na.csv,x,1\nb.csv,x,1\n", r"b.csv: the same flight as .*a.csv"),
+    ("file,trajectory,run\na.csv,x,1\n../b.csv,x,2\n", r"field 'file': '../b.csv' is not a path inside"),
+])
+def test_a_bad_manifest_is_one_error_naming_row_and_field(tmp_path, manifest, words):
+    own_flights(tmp_path / "m", ["a.csv", "b.csv"])
+    (tmp_path / "m" / "manifest.csv").write_text(manifest)
+    with pytest.raises(DataError, match=words):
+        split_folder(tmp_path / "m", tmp_path / "split", train=["x"], test=[], horizon=10)
+    assert not (tmp_path / "split").exists()
 
 
 def test_an_empty_test_folder_is_one_clear_error(dataset):

@@ -8,7 +8,7 @@ import torch
 
 from nanosysid import predictors, protocol, so3, synthetic
 from nanosysid.dataio import Flight
-from nanosysid.errors import ConfigError, PredictionError
+from nanosysid.errors import ConfigError, DataError, PredictionError
 
 
 def still_flight(name, T):
@@ -89,6 +89,52 @@ def test_evaluate_batches_give_the_same_answer_and_torch_output_is_accepted():
         assert np.allclose(a.mae[k], b.mae[k], rtol=1e-12)
     c = protocol.evaluate(lambda y0, u: torch.from_numpy(phys(y0, u)), flights, horizon=20)
     assert np.allclose(c.mae["v"], a.mae["v"])
+
+
+def test_the_rollouts_kept_while_scoring_are_those_of_the_flight_at_their_starts(tmp_path):
+    # a predictor whose every prediction tells its start and step: y_hat[i, h, 0] = start + (h + 1) / 100
+    flight = still_flight("melon_a_run1", 97)
+    flight.y[:, 0] = np.arange(97)
+
+    def tell(y0, u):
+        out = np.repeat(y0[:, None], u.shape[1], axis=1)
+        out[..., 0] = y0[:, None, 0] + np.arange(1, u.shape[1] + 1) / 100
+        return out
+
+    # 7 windows a batch, so that kept starts fall inside batches and on their edges
+    scores, kept = protocol.evaluate(tell, [flight], horizon=10, batch_size=7, keep=6)
+    k = kept["melon_a_run1"]
+    assert np.allclose(k.last[:, 0], np.arange(87) + 0.10)  # start i, step 10
+    assert list(k.starts) == list(range(0, 87, 6))
+    assert np.allclose(k.paths[:, :, 0], np.arange(0, 87, 6)[:, None] + np.arange(1, 11)[None] / 100)
+    assert scores.n_windows == 87
+    protocol.save_kept(kept, tmp_path)
+    back = protocol.load_kept(tmp_path, [flight], horizon=10, stride=6)["melon_a_run1"]
+    assert np.array_equal(back.paths, k.paths) and np.array_equal(back.last, k.last)
+    with pytest.raises(DataError, match=r"kept every 6 starts, not every 5; rerun the evaluate stage"):
+        protocol.load_kept(tmp_path, [flight], horizon=10, stride=5)
+    with pytest.raises(DataError, match=r"no rollouts of flight melon_a_run1 at horizon 20"):
+        protocol.load_kept(tmp_path, [flight], horizon=20)
+
+
+def test_a_rollout_runs_on_one_thread_whatever_the_callers_count():
+    # a loop over time on small tensors: with two threads each step waits on the other, and on
+    # any busy neighbour process (the slowdown beside two busy processes was 10x)
+    seen = []
+
+    def record(y0, u):
+        seen.append(torch.get_num_threads())
+        return np.repeat(y0[:, None], u.shape[1], axis=1)
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        protocol.evaluate(record, [still_flight("melon_a_run1", 60)], horizon=5, batch_size=20)
+        protocol.predictions(record, still_flight("melon_a_run1", 60), horizon=5)
+        after = torch.get_num_threads()
+    finally:
+        torch.set_num_threads(before)
+    assert seen == [1, 1, 1, 1] and after == 2
 
 
 def test_predictor_with_wrong_shape_is_rejected():

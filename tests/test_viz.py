@@ -9,7 +9,7 @@ import pytest
 
 from nanosysid.dataio import Flight
 from nanosysid.viz import rrd
-from nanosysid.viz.rerun import write_recording
+from nanosysid.viz.rerun import kept_of, write_recording
 
 T, H = 120, 10
 
@@ -46,7 +46,7 @@ def test_recording_is_the_same_bytes_wherever_and_whenever_it_is_written(flight,
     paths = [tmp_path / d / f"{flight.name}.rrd" for d in ("a", "elsewhere/b")]
     for path in paths:
         path.parent.mkdir(parents=True)
-        write_recording(flight, rollouts, path, stride=20, verdicts="# verdicts")
+        write_recording(flight, {n: kept_of(r, 20) for n, r in rollouts.items()}, path, verdicts="# verdicts")
     assert paths[0].read_bytes() == paths[1].read_bytes()
     # rerun's own check of the stream, its footer and manifest
     r = subprocess.run([sys.executable, "-m", "rerun_cli", "rrd", "verify", str(paths[0])], capture_output=True,

@@ -1,7 +1,8 @@
 """Flights in the published CSV schema: reading with validation, and atomic writing.
 
 The schema is the benchmark dataset's: one CSV per flight, named
-``<trajectory>_<date>_run<k>.csv``, with columns ``t`` (s), the rotor speeds
+``<trajectory>_<date>_run<k>.csv`` (or any name, in a ``train/`` and ``test/`` layout or listed in
+a ``manifest.csv``: :func:`flight_catalog`), with columns ``t`` (s), the rotor speeds
 ``m1_rads..m4_rads`` (rad/s), the outputs ``x y z`` (m), ``vx vy vz`` (m/s, world),
 ``qx qy qz qw`` (body to world), ``wx wy wz`` (rad/s, body) and the accelerometer
 ``ax_body ay_body az_body`` (m/s^2, specific force in the body frame). Further columns
@@ -44,6 +45,9 @@ __all__ = [
     "json_text",
     "session_of",
     "flight_files",
+    "flight_catalog",
+    "FlightFile",
+    "MANIFEST",
     "check_distinct",
     "atomic_file",
     "atomic_dir",
@@ -59,6 +63,10 @@ SAMPLE_PERIOD = 0.01  # s: the benchmark's 100 Hz, which every model and the pro
 PERIOD_TOL = 0.1  # share of the period a time step may be off it (jitter)
 
 _NAME = re.compile(r"^(?P<trajectory>[A-Za-z][A-Za-z0-9-]*)_(?P<date>[^_]+)_run(?P<run>\d+)$")
+_TRAJECTORY = re.compile(r"^[A-Za-z][A-Za-z0-9-]*$")
+_SESSION = re.compile(r"^[^_/\\]+$")
+MANIFEST = "manifest.csv"  # in a flights folder: which trajectory, run (and part) each file is
+PARTS = ("train", "test")
 
 
 @dataclass
@@ -158,20 +166,147 @@ def flight_files(folder: str | os.PathLike) -> list[Path]:
     extension (``.CSV``), which would otherwise be left out without a word."""
     folder = Path(folder)
     files, seen = [], {}
-    for f in sorted(p for p in folder.rglob("*") if p.suffix.lower() == ".csv"):
-        if f.suffix != ".csv":
-            raise DataError(f"{f}: the extension is {f.suffix!r}; flight files end in '.csv' (rename it)")
+    for f in _csv_files(folder):
         try:
             trajectory, run = parse_flight_name(f.stem)
         except ValueError as e:
             raise DataError(f"{f}: {e}") from None
-        key = (trajectory, session_of(f.stem), run)
-        if key in seen:
-            raise DataError(f"{f}: the same flight as {seen[key]} ({trajectory}, session {key[1]}, run {run}); "
-                            "keep one of them")
-        seen[key] = f
+        _check_once(seen, (trajectory, session_of(f.stem), run), f)
         files.append(f)
     return files
+
+
+@dataclass(frozen=True)
+class FlightFile:
+    """One flight file of a folder a user brings, with the name the pipeline gives it.
+
+    Attributes:
+        path: The file.
+        name: ``<trajectory>_<session>_run<k>``: the file's stem when it has that form, else
+            from the manifest or the file's place in a ``train/``/``test/`` layout.
+        part: ``"train"`` or ``"test"`` where the layout or the manifest says, else None.
+    """
+
+    path: Path
+    name: str
+    part: str | None = None
+
+
+def flight_catalog(folder: str | os.PathLike, *, any_name: bool = False) -> list[FlightFile]:
+    """The flights of a folder a user brings, each with its trajectory, run and part.
+
+    A file's trajectory and run come, first found:
+
+    1. from ``manifest.csv`` in ``folder``: columns ``file`` (relative to ``folder``),
+       ``trajectory``, ``run``, optional ``session`` and ``part`` (``train``/``test``); every
+       flight file under ``folder`` must have its row;
+    2. from a name ``<trajectory>_<date>_run<k>.csv``;
+    3. in a ``train/`` and ``test/`` layout, from any other name: the stem in lower case with
+       every run of other characters made ``-`` is the trajectory, a number at its end the run
+       (``Hover 03.csv``: trajectory ``hover``, run 3; ``loop.csv``: ``loop``, run 1).
+
+    The part is the manifest's, else the layout folder's (``train/...`` or ``test/...``).
+    ``any_name``: ``folder`` is itself one part (a benchmark's ``train/``), so 3. holds for it.
+
+    Raises:
+        DataError: a bad manifest (naming the file, the row and the field), a name of none of
+            these forms, or two files of one flight.
+    """
+    folder = Path(folder)
+    files = _csv_files(folder)
+    manifest = _read_manifest(folder) if (folder / MANIFEST).is_file() else None
+    layout = all((folder / p).is_dir() for p in PARTS)
+    out, seen = [], {}
+    for f in files:
+        rel = f.relative_to(folder)
+        top = rel.parts[0] if len(rel.parts) > 1 and rel.parts[0] in PARTS else None
+        if manifest is not None:
+            if rel.as_posix() not in manifest:
+                raise DataError(f"{f}: not listed in {folder / MANIFEST} (add a row for it: file, trajectory, run; "
+                                "or move it out of the folder)")
+            trajectory, session, run, part = manifest.pop(rel.as_posix())
+            part = part or (top if layout else None)
+        elif _NAME.match(f.stem):
+            trajectory, run = parse_flight_name(f.stem)
+            session, part = session_of(f.stem), top if layout else None
+        elif any_name or (layout and top is not None):
+            trajectory, run = _name_of_stem(f)
+            session, part = "own", top if layout else None
+        else:
+            raise DataError(f"{f}: flight name {f.stem!r} is not of the form <trajectory>_<date>_run<k>; rename it, "
+                            f"put the flights in train/ and test/ folders, or list them in {folder / MANIFEST} "
+                            "(columns file, trajectory, run)")
+        _check_once(seen, (trajectory, session, run), f)
+        out.append(FlightFile(f, f"{trajectory}_{session}_run{run}", part))
+    if manifest:
+        first = next(iter(manifest))
+        raise DataError(f"{folder / MANIFEST}: row for file {first!r}: no such flight file under {folder}")
+    return out
+
+
+def _csv_files(folder: Path) -> list[Path]:
+    """The ``.csv`` files under ``folder`` (not a manifest), sorted; a ``.CSV`` refused by name."""
+    files = []
+    for f in sorted(p for p in folder.rglob("*") if p.suffix.lower() == ".csv"):
+        if f.suffix != ".csv":
+            raise DataError(f"{f}: the extension is {f.suffix!r}; flight files end in '.csv' (rename it)")
+        if f.name != MANIFEST:
+            files.append(f)
+    return files
+
+
+def _check_once(seen: dict, key: tuple, f: Path) -> None:
+    if key in seen:
+        trajectory, session, run = key
+        raise DataError(f"{f}: the same flight as {seen[key]} ({trajectory}, session {session}, run {run}); "
+                        "keep one of them")
+    seen[key] = f
+
+
+def _name_of_stem(f: Path) -> tuple[str, int]:
+    """Trajectory and run of a file named freely (``Hover 03`` -> ``hover``, 3)."""
+    slug = re.sub(r"[^a-z0-9]+", "-", f.stem.lower()).strip("-")
+    m = re.match(r"^(?P<t>.*?)-?(?:run)?-?(?P<k>\d+)$", slug)
+    trajectory, run = (m["t"].strip("-"), int(m["k"])) if m and m["t"].strip("-") else (slug, 1)
+    if not _TRAJECTORY.match(trajectory):
+        trajectory = f"flight-{trajectory}" if trajectory else "flight"
+    return trajectory, run
+
+
+def _read_manifest(folder: Path) -> dict[str, tuple[str, str, int, str | None]]:
+    """``manifest.csv``: file -> (trajectory, session, run, part); one :class:`DataError` naming
+    the row and the field of the first bad value."""
+    path = folder / MANIFEST
+    try:
+        df = pd.read_csv(path, dtype=str, keep_default_na=False, skipinitialspace=True)
+    except (pd.errors.EmptyDataError, pd.errors.ParserError, UnicodeDecodeError) as e:
+        raise DataError(f"{path}: not a readable CSV file ({e})") from None
+    df.columns = [c.strip() for c in df.columns]
+    missing = [c for c in ("file", "trajectory", "run") if c not in df.columns]
+    if missing:
+        raise DataError(f"{path}: missing column(s) {', '.join(map(repr, missing))} (a manifest has columns file, "
+                        "trajectory, run, and optionally session and part)")
+    out: dict = {}
+    for i, row in enumerate(df.to_dict("records")):
+        where = f"{path}: row {i + 1} (line {i + 2})"
+        file = Path(row["file"].strip()).as_posix()
+        trajectory, run = row["trajectory"].strip(), row["run"].strip()
+        session, part = row.get("session", "").strip() or "own", row.get("part", "").strip() or None
+        if not file or file.startswith("../") or Path(file).is_absolute():
+            raise DataError(f"{where}, field 'file': {row['file']!r} is not a path inside {folder}")
+        if not _TRAJECTORY.match(trajectory):
+            raise DataError(f"{where}, field 'trajectory': {trajectory!r} is not a name (a letter, then letters, "
+                            "digits or '-')")
+        if not run.isdigit():
+            raise DataError(f"{where}, field 'run': {run!r} is not a whole number")
+        if not _SESSION.match(session):
+            raise DataError(f"{where}, field 'session': {session!r} may not hold '_' or '/'")
+        if part not in (None, *PARTS):
+            raise DataError(f"{where}, field 'part': {part!r} is neither 'train' nor 'test'")
+        if file in out:
+            raise DataError(f"{where}, field 'file': {file!r} is listed twice")
+        out[file] = (trajectory.lower(), session, int(run), part)
+    return out
 
 
 def check_distinct(flights: Sequence[Flight]) -> None:
@@ -232,8 +367,8 @@ def _numbers(path: Path, col: str, text: pd.Series) -> np.ndarray:
     return num
 
 
-def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
-    """Read and validate one flight CSV.
+def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1, name: str | None = None) -> Flight:
+    """Read and validate one flight CSV, named ``name`` (default: the file's stem).
 
     Raises:
         DataError: missing column, non-numeric value, NaN, non-increasing ``t``, a
@@ -303,7 +438,7 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1) -> Flight:
             f" (tolerance {QUAT_NORM_TOL:g})"
         )
     return Flight(
-        name=path.stem,
+        name=name or path.stem,
         t=t,
         u=np.stack([values[c] for c in INPUT_COLUMNS], axis=1),
         y=np.stack([values[c] for c in OUTPUT_COLUMNS], axis=1),

@@ -44,6 +44,9 @@ PINNED: dict[str, str] = {
     "OPENBLAS_CORETYPE": "Nehalem",
     # inductor's C++ (the simulator's compiled step): the x86-64-v2 instruction set, not the host's
     "TORCHINDUCTOR_CPP_MARCH": "x86-64-v2",
+    # OpenMP's idle threads sleep instead of spinning: a switch of speed only (no byte changes),
+    # which keeps a thread that waits from taking a core a busy neighbour process needs
+    "OMP_WAIT_POLICY": "PASSIVE",
 }
 
 
@@ -117,7 +120,7 @@ def quiet_tracing() -> Iterator[None]:
 def pinned_environment() -> dict[str, str]:
     """The variables :func:`pin` sets on this machine (none of the x86 ones elsewhere)."""
     if platform.machine().lower() not in ("x86_64", "amd64"):
-        return {k: PINNED[k] for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "ATEN_CPU_CAPABILITY")}
+        return {k: PINNED[k] for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "ATEN_CPU_CAPABILITY", "OMP_WAIT_POLICY")}
     return dict(PINNED)
 
 

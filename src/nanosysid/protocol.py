@@ -26,10 +26,11 @@ import numpy as np
 
 from nanosysid import metrics
 from nanosysid.dataio import (INPUT_COLUMNS, OUTPUT_COLUMNS, SAMPLE_PERIOD, Flight, atomic_file, check_distinct,
-                              flight_files, parse_flight_name, read_flight_csv)
+                              flight_catalog, parse_flight_name, read_flight_csv)
 from nanosysid.errors import ConfigError, DataError, PredictionError
+from nanosysid.numerics import LOOP_THREADS, threads
 
-__all__ = ["Benchmark", "Flight", "Scores", "evaluate", "load", "predictions", "score", "windows", "check_flight", "check_predictions",
+__all__ = ["Benchmark", "Flight", "Scores", "Kept", "evaluate", "load", "save_kept", "load_kept", "predictions", "score", "windows", "check_flight", "check_predictions",
            "template_frame", "write_template", "QUAT_NORM_TOLERANCE"]
 
 Predictor = Callable[[Any, Any], Any]
@@ -111,13 +112,13 @@ def load(path: str | os.PathLike, *, horizon: int = 50) -> Benchmark:
         d = root / part
         if not d.is_dir():
             raise DataError(f"{d}: no such folder (a benchmark folder holds train/ and test/)")
-        files = flight_files(d)
+        files = flight_catalog(d, any_name=True)
         for f in files:
             if f.name in seen:
-                raise DataError(f"{f}: flight {f.stem} is in both train/ and test/ (also {seen[f.name]}); a flight "
-                                "scored on must not be trained on")
-            seen[f.name] = f
-        parts[part] = [read_flight_csv(f, min_rows=horizon + 1) for f in files]
+                raise DataError(f"{f.path}: flight {f.name} is in both train/ and test/ (also {seen[f.name]}); a "
+                                "flight scored on must not be trained on")
+            seen[f.name] = f.path
+        parts[part] = [read_flight_csv(f.path, min_rows=horizon + 1, name=f.name) for f in files]
     check_distinct(parts["train"] + parts["test"])
     if not parts["test"]:
         raise DataError(f"{root / 'test'}: no flight CSV files")
@@ -225,7 +226,10 @@ def _predicted_batches(predict: Predictor, y0: np.ndarray, u: np.ndarray, batch_
     for s in range(0, n, batch_size):
         b = slice(s, min(s + batch_size, n))
         context = {"t0": _read_only(t0[b]), "flight": name} if timed else {}
-        pred = _to_numpy(predict(_read_only(y0[b]), _read_only(u[b]), **context))
+        # a rollout is a loop over time on small tensors, whatever the predictor: one thread
+        # (numerics.LOOP_THREADS) is as fast when the machine is idle and not stalled when it is busy
+        with threads(LOOP_THREADS):
+            pred = _to_numpy(predict(_read_only(y0[b]), _read_only(u[b]), **context))
         if pred.shape != (b.stop - b.start, horizon, 13):
             raise PredictionError(
                 f"predictor returned shape {pred.shape} on flight {name}; "
@@ -235,14 +239,92 @@ def _predicted_batches(predict: Predictor, y0: np.ndarray, u: np.ndarray, batch_
         yield b, pred
 
 
-def _score_flight(predict: Predictor, flight: Flight, horizon: int, batch_size: int) -> Scores:
+@dataclass
+class Kept:
+    """What the figures and recordings show of a predictor's rollouts on one flight, kept while
+    it is scored so that they need not roll it out again.
+
+    Attributes:
+        last: ``(N, 13)``: row ``i`` is the prediction of sample ``i + H`` from start ``i``,
+            the H-step-ahead prediction along the flight.
+        paths: ``(S, H, 13)``: the whole rollouts from the starts ``0, stride, 2 stride, ..``.
+        stride: Starts between two kept whole rollouts.
+    """
+
+    last: np.ndarray
+    paths: np.ndarray
+    stride: int
+
+    @property
+    def starts(self) -> np.ndarray:
+        """The starts of :attr:`paths`, ``(S,)``."""
+        return np.arange(0, len(self.last), self.stride)
+
+
+def _score_flight(predict: Predictor, flight: Flight, horizon: int, batch_size: int,
+                  stride: int | None = None) -> tuple[Scores, Kept | None]:
     y0, u, y = windows(flight, horizon)
     n = len(y0)
     sums = {k: np.zeros(horizon) for k in metrics.QUANTITIES}
+    last, paths = (np.empty((n, 13)), []) if stride else (None, [])
     for b, pred in _predicted_batches(predict, y0, u, batch_size, flight):
         for k, e in metrics.errors(y[b], pred).items():
             sums[k] += e.sum(axis=0)
-    return Scores(mae={k: v / n for k, v in sums.items()}, n_windows=n)
+        if stride:
+            last[b] = pred[:, -1]
+            paths.append(pred[(-b.start) % stride::stride])
+    kept = Kept(last, np.concatenate(paths), stride) if stride else None
+    return Scores(mae={k: v / n for k, v in sums.items()}, n_windows=n), kept
+
+
+def save_kept(kept: Mapping[str, Kept], folder: str | os.PathLike) -> None:
+    """Write each flight's :class:`Kept` rollouts into ``folder`` (which must exist):
+    ``<flight>.last.npy``, ``<flight>.paths.npy`` and ``kept.json`` (the stride and the flights'
+    window counts). ``.npy`` files hold no time stamp: the same rollouts, the same bytes."""
+    import json
+
+    folder = Path(folder)
+    for name, k in kept.items():
+        np.save(folder / f"{name}.last.npy", np.ascontiguousarray(k.last))
+        np.save(folder / f"{name}.paths.npy", np.ascontiguousarray(k.paths))
+    index = {"stride": {n: k.stride for n, k in kept.items()}, "windows": {n: len(k.last) for n, k in kept.items()}}
+    (folder / "kept.json").write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
+
+
+def load_kept(folder: str | os.PathLike, flights: Sequence[Flight], *, horizon: int, stride: int | None = None,
+              stage: str = "evaluate") -> dict[str, Kept]:
+    """The :class:`Kept` rollouts :func:`save_kept` wrote in ``folder``, one per flight, checked
+    against the flights (their windows at ``horizon``) and ``stride`` (when given).
+
+    Raises:
+        DataError: none kept there, or kept for other flights, another horizon or stride,
+            naming the folder and the ``stage`` that writes them.
+    """
+    import json
+
+    folder = Path(folder)
+    index_file = folder / "kept.json"
+    if not index_file.is_file():
+        raise DataError(f"{folder}: no kept rollouts (kept.json); the {stage} stage writes them")
+    try:
+        index = json.loads(index_file.read_text())
+        out = {}
+        for f in flights:
+            n, s = len(f) - horizon, index["stride"].get(f.name)
+            if index["windows"].get(f.name) != n:
+                raise DataError(f"{index_file}: no rollouts of flight {f.name} at horizon {horizon} ({n} windows); "
+                                f"rerun the {stage} stage")
+            if stride is not None and s != stride:
+                raise DataError(f"{index_file}: rollouts kept every {s} starts, not every {stride}; rerun the {stage} "
+                                "stage with the same stride")
+            k = Kept(np.load(folder / f"{f.name}.last.npy"), np.load(folder / f"{f.name}.paths.npy"), int(s))
+            if k.last.shape != (n, 13) or k.paths.shape != (len(k.starts), horizon, 13):
+                raise DataError(f"{folder}: the kept rollouts of flight {f.name} have shapes {k.last.shape} and "
+                                f"{k.paths.shape}; rerun the {stage} stage")
+            out[f.name] = k
+    except (OSError, ValueError, KeyError, AttributeError) as e:
+        raise DataError(f"{folder}: kept rollouts unreadable ({e}); rerun the {stage} stage") from None
+    return out
 
 
 def predictions(predict: Predictor, flight: Flight, *, horizon: int = 50, batch_size: int = 8192,
@@ -295,19 +377,27 @@ def write_template(predict: Predictor, flight: Flight, path: str | os.PathLike, 
 
 
 def evaluate(
-    predict: Predictor, flights: Sequence[Flight], *, horizon: int = 50, batch_size: int = 8192
-) -> Scores:
+    predict: Predictor, flights: Sequence[Flight], *, horizon: int = 50, batch_size: int = 8192,
+    keep: int | None = None,
+) -> Scores | tuple[Scores, dict[str, Kept]]:
     """Score a predictor on every window of every flight.
 
     The top-level MAE is the mean of the per-flight MAE curves, as the paper averages
     over the three Melon runs; ``per_flight`` holds each flight's own scores.
+
+    ``keep``: also return, by flight name, the rollouts the figures and recordings show
+    (:class:`Kept`, whole rollouts every ``keep`` starts), taken from the same rollouts.
     """
     if not flights:
         raise DataError("evaluate: no flights given")
     horizon, batch_size = _count(horizon, "horizon"), _count(batch_size, "batch_size")
-    per = {f.name: _score_flight(predict, f, horizon, batch_size) for f in flights}
+    if keep is not None:
+        keep = _count(keep, "keep")
+    both = {f.name: _score_flight(predict, f, horizon, batch_size, keep) for f in flights}
+    per = {n: s for n, (s, _) in both.items()}
     mae = {k: np.mean([s.mae[k] for s in per.values()], axis=0) for k in metrics.QUANTITIES}
-    return Scores(mae=mae, n_windows=sum(s.n_windows for s in per.values()), per_flight=per)
+    scores = Scores(mae=mae, n_windows=sum(s.n_windows for s in per.values()), per_flight=per)
+    return scores if keep is None else (scores, {n: k for n, (_, k) in both.items()})
 
 
 def score(y_true, y_pred) -> Scores:

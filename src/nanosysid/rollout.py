@@ -12,13 +12,19 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from nanosysid.numerics import LOOP_THREADS, threads
+
 __all__ = ["rollout", "StepPredictor", "as_tensor", "advance_inputs"]
 
 StepFn = Callable[[Tensor, Tensor], Tensor]
 
 
+@threads(LOOP_THREADS)
 def rollout(step: StepFn, y0: Tensor, u: Tensor) -> Tensor:
     """Open-loop rollout: ``y_{h} = step(y_{h-1}, u_{h-1})`` for h = 1..H, no correction.
+
+    Runs on :data:`~nanosysid.numerics.LOOP_THREADS` of torch's threads (a loop over time on
+    small tensors: more threads wait on each other, and on any other busy process, at each step).
 
     Args:
         step: One-step map.

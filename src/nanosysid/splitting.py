@@ -7,7 +7,7 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
-from nanosysid.dataio import atomic_dir, check_distinct, flight_files, json_text, parse_flight_name, read_flight_csv
+from nanosysid.dataio import atomic_dir, check_distinct, flight_catalog, json_text, parse_flight_name, read_flight_csv
 from nanosysid.errors import ConfigError, DataError
 
 __all__ = ["split_folder"]
@@ -25,8 +25,11 @@ def split_folder(
 ) -> dict:
     """Copy each validated flight CSV under ``src`` into ``dst/train`` or ``dst/test``.
 
-    A flight goes to the part whose list names its trajectory; flights of other
-    trajectories are left out. ``dst`` is replaced only when the whole split succeeded.
+    A flight goes to the part whose list names its trajectory; a flight of another trajectory
+    goes to the part its ``train/``/``test/`` folder or ``src``'s manifest gives it, else it is
+    left out. Each copy is named ``<trajectory>_<session>_run<k>.csv``
+    (:func:`nanosysid.dataio.flight_catalog`), the form every later stage reads the trajectory
+    and run from. ``dst`` is replaced only when the whole split succeeded.
 
     Returns:
         Summary with the flights and sample counts of each part (also ``dst/split.json``).
@@ -35,29 +38,31 @@ def split_folder(
     both = set(train) & set(test)
     if both:
         raise ConfigError(f"split: trajectories {sorted(both)} are listed for both train and test")
-    files = flight_files(src)
+    files = flight_catalog(src)
     if not files:
         raise DataError(f"{src}: no flight CSV files found")
-    parts: dict[str, list[Path]] = {"train": [], "test": []}
+    parts: dict[str, list] = {"train": [], "test": []}
     for f in files:
-        trajectory, _ = parse_flight_name(f.stem)
-        part = "train" if trajectory in train else "test" if trajectory in test else None
+        trajectory, _ = parse_flight_name(f.name)
+        part = "train" if trajectory in train else "test" if trajectory in test else f.part
         if part is None:
-            log.info("split: %s left out (trajectory %r in neither list)", f.name, trajectory)
+            log.info("split: %s left out (trajectory %r in neither list)", f.path.name, trajectory)
             continue
+        if f.name != f.path.stem:
+            log.info("split: %s -> %s/%s.csv", f.path.relative_to(src), part, f.name)
         parts[part].append(f)
     if not parts["test"]:
         raise DataError(f"{src}: no flight of the test trajectories {list(test)}")
     summary: dict = {}
-    read = {f: read_flight_csv(f, min_rows=horizon + 1) for flist in parts.values() for f in flist}
+    read = {f: read_flight_csv(f.path, min_rows=horizon + 1) for flist in parts.values() for f in flist}
     check_distinct(list(read.values()))
     with atomic_dir(dst, inputs=[src]) as tmp:
         for part, flist in parts.items():
             (tmp / part).mkdir()
             samples = {}
             for f in flist:
-                samples[f.stem] = len(read[f])
-                shutil.copyfile(f, tmp / part / f.name)
+                samples[f.name] = len(read[f])
+                shutil.copyfile(f.path, tmp / part / f"{f.name}.csv")
             summary[part] = {"flights": samples, "samples": sum(samples.values())}
         (tmp / "split.json").write_text(json_text(summary))
     log.info(

@@ -27,17 +27,20 @@ import numpy as np
 
 from nanosysid import metrics
 from nanosysid.dataio import Flight, atomic_file
+from nanosysid.protocol import Kept
 from nanosysid.viz import rrd
-from nanosysid.viz.signals import SIGNALS, ahead, model_color, readable
+from nanosysid.viz.signals import SIGNALS, model_color, readable
 
-__all__ = ["write_recording", "rollout_starts", "APPLICATION_ID"]
+__all__ = ["write_recording", "kept_of", "APPLICATION_ID"]
 
 APPLICATION_ID = "nanosysid"
 
 
-def rollout_starts(n_windows: int, stride: int) -> np.ndarray:
-    """Start samples of the rollouts drawn in 3D: every ``stride``-th window."""
-    return np.arange(0, n_windows, max(1, int(stride)))
+def kept_of(pred: np.ndarray, stride: int) -> Kept:
+    """:class:`Kept` rollouts from whole predictions ``(N, H, 13)`` from every start
+    (:func:`nanosysid.protocol.predictions`), whole rollouts every ``stride`` starts."""
+    stride = max(1, int(stride))
+    return Kept(last=pred[:, -1], paths=pred[::stride], stride=stride)
 
 
 def _rgb(color: str) -> list[int]:
@@ -74,24 +77,26 @@ def _blueprint(models: list[str], notes: bool = False):
     return blueprint
 
 
-def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Path, *, stride: int = 50,
+def write_recording(flight: Flight, rollouts: Mapping[str, Kept], path: Path, *,
                     verdicts: str | None = None) -> None:
     """Write ``path`` (``.rrd``) for one flight.
 
     Args:
         flight: The measured flight.
-        rollouts: Each model's predictions from every start, ``(T - H, H, 13)``
-            (:func:`nanosysid.protocol.predictions`).
+        rollouts: Each model's rollouts on it (:class:`nanosysid.protocol.Kept`, as the
+            evaluate stage keeps them, or :func:`kept_of` from whole predictions); the 3D
+            rollouts are drawn from their starts, which must be the same for every model.
         path: Output file; written to a temporary name, then renamed.
-        stride: Draw a 3D rollout from every ``stride``-th start.
         verdicts: Discovery's verdicts (markdown), shown beside the signals.
     """
     import rerun as rr
 
     T = len(flight)
-    n, H = next(iter(rollouts.values())).shape[:2]
+    first = next(iter(rollouts.values()))
+    n, H, starts = len(first.last), first.paths.shape[1], first.starts
+    if any(len(k.last) != n or k.stride != first.stride or k.paths.shape[1] != H for k in rollouts.values()):
+        raise ValueError(f"flight {flight.name}: the models' rollouts differ in windows, horizon or stride")
     t = flight.t - flight.t[0]
-    starts = rollout_starts(n, stride)
     # the recording id is the flight's, so the same flight and models give the same file
     recording_id = f"{APPLICATION_ID}-{flight.name}"
     rec = rr.RecordingStream(APPLICATION_ID, recording_id=recording_id, send_properties=False)
@@ -123,8 +128,8 @@ def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Pa
         static("world/rollouts/truth", rr.LineStrips3D.from_fields(colors=_rgb(model_color("truth")), radii=0.003))
         rec.send_columns("world/rollouts/truth", indexes=at_starts,
                          columns=rr.LineStrips3D.columns(strips=list(truth_paths)))
-        for i, (name, pred) in enumerate(rollouts.items()):
-            paths = np.concatenate([flight.y[starts, None, :3], pred[starts, :, :3]], axis=1)  # (S, H+1, 3)
+        for i, (name, kept) in enumerate(rollouts.items()):
+            paths = np.concatenate([flight.y[starts, None, :3], kept.paths[:, :, :3]], axis=1)  # (S, H+1, 3)
             static(f"world/rollouts/{name}", rr.LineStrips3D.from_fields(colors=_rgb(model_color(name, i)),
                                                                         radii=0.003))
             rec.send_columns(f"world/rollouts/{name}", indexes=at_starts,
@@ -135,8 +140,8 @@ def write_recording(flight: Flight, rollouts: Mapping[str, np.ndarray], path: Pa
             static(f"signals/{k}/truth", rr.SeriesLines(names=[f"{a} measured" for a in axes],
                                                         colors=[_rgb(model_color("truth"))] * 3))
             rec.send_columns(f"signals/{k}/truth", indexes=every, columns=rr.Scalars.columns(scalars=truth[k]))
-        for i, (name, pred) in enumerate(rollouts.items()):
-            y_hat = ahead(pred, H, T)[H:H + n]  # (n, 13): ŷ(t | t-H)
+        for i, (name, kept) in enumerate(rollouts.items()):
+            y_hat = kept.last  # (n, 13): ŷ(t | t-H) for t = H .. H + n - 1
             err = metrics.errors(flight.y[None, H:H + n], y_hat[None])
             shown = readable(y_hat)
             color = _rgb(model_color(name, i))
