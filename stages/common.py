@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import errno
 import logging
+import signal
 import sys
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -54,7 +55,7 @@ def run_stage(
     try:
         kw = {"path": args.params} if args.params else {}
         cfg: DictConfig = load_params(args.overrides, **kw)
-        with stage_run(stage, cfg):
+        with stage_run(stage, cfg), _stopped_by_signals():
             if name_arg:
                 main(cfg, getattr(args, name_arg))
             else:
@@ -65,7 +66,39 @@ def run_stage(
     except OSError as e:
         print(f"error: {os_fault(e)}", file=sys.stderr)
         return 2
+    except Stopped as e:
+        print(f"error: {stage} stopped by {e.name}; its outputs were not written (the last run's, if any, are as "
+              "they were)", file=sys.stderr)
+        return 128 + e.signum
     return 0
+
+
+class Stopped(BaseException):
+    """A stage stopped by a signal: a BaseException, so that no library's ``except Exception``
+    (Lightning's fit loop, a retry) takes it for an error it may handle and carry on from."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signum)
+        self.signum, self.name = signum, signal.Signals(signum).name
+
+
+class _stopped_by_signals:
+    """Inside the block, SIGTERM and SIGINT raise :class:`Stopped`: the stage unwinds through its
+    outputs' guards (nothing half-written is renamed into place) and exits 128 + the signal.
+    Lightning keeps a SIGTERM handler found in place and calls it after its own."""
+
+    def __enter__(self):
+        def stop(signum, frame):
+            raise Stopped(signum)
+
+        # a signal the caller ignores (SIGINT of a job started in the background) stays ignored
+        self._before = {s: signal.signal(s, stop) for s in (signal.SIGTERM, signal.SIGINT)
+                        if signal.getsignal(s) is not signal.SIG_IGN}
+        return self
+
+    def __exit__(self, *exc) -> None:
+        for s, h in self._before.items():
+            signal.signal(s, h)
 
 
 def _settings_help(main: Callable[..., Any], argv: Sequence[str]) -> str:

@@ -192,3 +192,98 @@ def test_the_readmes_ablation_names_the_stages_dvc_reruns():
     line = next(x for x in (ROOT / "README.md").read_text().splitlines() if x.startswith(f"dvc exp run -S {change}"))
     claimed = line.split("reruns", 1)[1].strip().split(", ")
     assert claimed == list(reruns), (claimed, reruns)
+
+
+def readme_commands(prefix: str) -> list[str]:
+    """The README's shell command lines (in ```bash blocks) that start with ``prefix``, comments cut."""
+    text = (ROOT / "README.md").read_text()
+    lines = [line for block in re.findall(r"```bash\n(.*?)```", text, flags=re.S) for line in block.splitlines()]
+    return [line.split("  #")[0].strip() for line in lines if line.startswith(prefix)]
+
+
+def test_the_readmes_minio_remote_commands_configure_dvc(tmp_path):
+    import shlex
+    import subprocess
+    import sys
+
+    add, = readme_commands("dvc remote add")
+    modify, = readme_commands("dvc remote modify")
+    # endpointurl is an S3 option: the remote is the comment's s3:// alternative
+    s3 = re.search(r"or: (s3://\S+)", next(x for x in (ROOT / "README.md").read_text().splitlines()
+                                           if x.startswith("dvc remote add"))).group(1)
+    env = dict(__import__("os").environ, PATH=f"{Path(sys.executable).parent}:{__import__('os').environ['PATH']}",
+               DVC_NO_ANALYTICS="1")
+    for cmd in (["git", "init", "-q"], ["dvc", "init", "-q"], shlex.split(add)[:-1] + [s3], shlex.split(modify)):
+        r = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True)
+        assert r.returncode == 0, (cmd, r.stderr)
+    config = (tmp_path / ".dvc" / "config").read_text()
+    assert f"url = {s3}" in config and "endpointurl = http://minio:9000" in config and "remote = store" in config
+
+
+def test_the_readmes_slurm_experiment_composes_and_says_what_this_machine_lacks(monkeypatch):
+    from nanosysid import config, launcher
+    from nanosysid.errors import ConfigError
+
+    line, = [x for x in readme_commands("dvc exp run -S launcher=slurm")]
+    overrides = re.findall(r"-S (\S+)", line)
+    assert overrides == ["launcher=slurm", "launcher.partition=cpu", "campaign.worlds=500"]
+    cfg = yaml.safe_load(config.compose_text(overrides))
+    assert cfg["launcher"]["kind"] == "slurm" and cfg["launcher"]["partition"] == "cpu"
+    assert cfg["campaign"]["worlds"] == 500
+    spec = launcher.Launcher(**{k: v for k, v in cfg["launcher"].items() if k in launcher.Launcher.__dataclass_fields__})
+    monkeypatch.setattr(launcher.shutil, "which", lambda name: None)  # no SLURM here: one clear line
+    try:
+        launcher.slurm_executor(spec)
+    except ConfigError as e:
+        assert "no SLURM cluster here (no sbatch on the PATH)" in str(e)
+    else:
+        raise AssertionError("a slurm launcher without sbatch must be refused")
+
+
+def test_the_readmes_rig_local_compose_writes_the_folder_into_the_rigs_params(tmp_path):
+    import shlex
+    import subprocess
+    import sys
+
+    line, = readme_commands("python -m nanosysid.config compose rig.local=")
+    import shutil
+
+    shutil.copytree(ROOT / "conf", tmp_path / "conf")
+    r = subprocess.run([sys.executable, *shlex.split(line)[1:]], cwd=tmp_path, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    folder = line.split("rig.local=")[1]
+    assert yaml.safe_load((tmp_path / "params-rig.yaml").read_text())["rig"]["local"] == folder
+    assert "params.yaml" in r.stdout and (tmp_path / "params.yaml").is_file()
+
+
+def test_the_readmes_recording_command_names_a_recording_visualize_writes_and_the_viewer_it_installs():
+    import subprocess
+
+    line, = readme_commands(".venv/bin/rerun ")
+    viewer, recording = line.split()
+    params = yaml.safe_load((ROOT / "params.yaml").read_text())
+    assert Path(recording).parent == Path(params["visualize"]["out_dir"])
+    assert Path(recording).stem == f"{params['split']['test'][0]}_{params['sim']['date']}_run1"
+    assert params["sim"]["runs"][params["split"]["test"][0]] >= 1
+    # the viewer the environment installs (opening a window is left to the reader)
+    r = subprocess.run([str(ROOT / viewer), "--version"], capture_output=True, text=True)
+    assert r.returncode == 0 and "rerun" in r.stdout.lower(), (r.stdout, r.stderr)
+
+
+def test_the_readmes_bench_command_names_benchmarks_that_exist():
+    import importlib.util
+    import subprocess
+    import sys
+
+    names = re.findall(r'NAMES="?([a-z_ ]+)"?', (ROOT / "README.md").read_text())
+    assert names
+    bench = importlib.util.spec_from_file_location("bench_run", ROOT / "benchmarks" / "run.py")
+    module = importlib.util.module_from_spec(bench)
+    bench.loader.exec_module(module)
+    for name in {n for ns in names for n in ns.split()}:
+        assert name in module.BENCHMARKS, name
+    for name in module.BENCHMARKS:
+        source = (ROOT / "benchmarks" / f"{name}.py").read_text()
+        assert "\ndef main(" in source and source.startswith('"""'), name
+    r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "run.py"), "nosuch"], capture_output=True, text=True)
+    assert r.returncode == 2 and "unknown benchmark nosuch: choose from" in r.stderr

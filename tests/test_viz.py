@@ -48,7 +48,16 @@ def test_recording_is_the_same_bytes_wherever_and_whenever_it_is_written(flight,
         path.parent.mkdir(parents=True)
         write_recording(flight, {n: kept_of(r, 20) for n, r in rollouts.items()}, path, verdicts="# verdicts")
     assert paths[0].read_bytes() == paths[1].read_bytes()
-    # rerun's own check of the stream, its footer and manifest
+    # the stream whole, with its footer (rerun's own `rrd verify` also accepts a cut file)
+    data = paths[0].read_bytes()
+    rrd.check(data)
+    for cut in (data[:-1], data[:len(data) // 2], data[:100], b"RRF2" + bytes(range(256)) * 8):
+        with pytest.raises(ValueError):
+            rrd.check(cut)
+    spoiled = bytearray(data)
+    spoiled[-40] ^= 0xFF  # a byte of the footer
+    with pytest.raises(ValueError, match="checksum"):
+        rrd.check(bytes(spoiled))
     r = subprocess.run([sys.executable, "-m", "rerun_cli", "rrd", "verify", str(paths[0])], capture_output=True,
                        text=True)
     assert r.returncode == 0, r.stderr

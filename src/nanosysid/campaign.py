@@ -439,7 +439,8 @@ def _identified(world: HiddenWorld, flights: Sequence, setup: Setup | None = Non
         "lag_true": truth_lag, "lag": lag.value, "lag_error": lag.value - truth_lag, "lag_events": lag.events,
         "lag_covered": None if lag.interval[0] is None else bool(lag.interval[0] <= truth_lag <= lag.interval[1]),
         "k_f_error": thrust.coef / vehicle.k_f - 1,
-        "k_f_covered": bool(thrust.ci95[0] <= k_f_target <= thrust.ci95[1]),
+        # one training flight gives no interval (it comes from independent flights): not counted
+        "k_f_covered": None if thrust.ci95 is None else bool(thrust.ci95[0] <= k_f_target <= thrust.ci95[1]),
         "k_m_identifiable": "inertia_offset" not in world.effects,
         "k_m_paper_error": paper.coef / vehicle.k_m - 1,
     }
@@ -448,9 +449,9 @@ def _identified(world: HiddenWorld, flights: Sequence, setup: Setup | None = Non
         yaw = identify.with_inertia_range(identify.fit_yaw_moment_iv(cal, vehicle, blocks=6), vehicle.inertia[2],
                                           setup.inertia_z_range)
         out["k_m_error"] = yaw.coef / vehicle.k_m - 1
-        out["k_m_covered_given_inertia"] = bool(yaw.ci95[0] <= vehicle.k_m <= yaw.ci95[1])
+        out["k_m_covered_given_inertia"] = None if yaw.ci95 is None else bool(yaw.ci95[0] <= vehicle.k_m <= yaw.ci95[1])
         ci = yaw.ci95 if yaw.ci95_inertia is None else yaw.ci95_inertia
-        out["k_m_covered"] = bool(ci[0] <= vehicle.k_m <= ci[1])
+        out["k_m_covered"] = None if ci is None else bool(ci[0] <= vehicle.k_m <= ci[1])
     return out, dataclasses.replace(vehicle, k_f=thrust.coef, k_m=yaw.coef)
 
 

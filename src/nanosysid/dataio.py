@@ -309,20 +309,36 @@ def _read_manifest(folder: Path) -> dict[str, tuple[str, str, int, str | None]]:
     return out
 
 
-def check_distinct(flights: Sequence[Flight]) -> None:
-    """Refuse two flights holding the same samples under different names (a test flight copied
-    under a training name would be trained on and scored on)."""
-    import hashlib
+# distinct samples two flights may share before one counts as a copy of part of the other: a flight
+# at rest repeats one sample (one distinct value), a recorded flight never repeats another's
+SHARED_SAMPLES = 20
 
-    seen: dict[str, Flight] = {}
-    for f in flights:
-        h = hashlib.sha256(np.ascontiguousarray(np.column_stack([f.t, f.u, f.y])).tobytes()).hexdigest()
-        if h in seen:
-            a, b = seen[h], f
-            where = lambda g: str(g.source) if g.source else g.name  # noqa: E731
-            raise DataError(f"{where(b)}: the same samples as {where(a)}; a flight must be in the data once "
-                            "(a copy under another name leaks between training and test)")
-        seen[h] = f
+
+def check_distinct(flights: Sequence[Flight]) -> None:
+    """Refuse a flight holding samples of another under a different name: a copy, a copy with
+    its time stamps moved, or a part of another (its first rows, say). A test flight in the
+    training set would be trained on and scored on.
+
+    A sample is the row of rotor speeds and outputs; two flights sharing at least
+    :data:`SHARED_SAMPLES` distinct samples are refused.
+    """
+    owner: dict[bytes, int] = {}
+    where = lambda g: str(g.source) if g.source else g.name  # noqa: E731
+    for i, f in enumerate(flights):
+        rows = np.ascontiguousarray(np.column_stack([f.u, f.y]), dtype=np.float64)
+        keys = set(rows.view(np.dtype((np.void, rows.shape[1] * 8))).ravel().tolist())
+        shared: dict[int, int] = {}
+        for k in keys:
+            j = owner.setdefault(k, i)
+            if j != i:
+                shared[j] = shared.get(j, 0) + 1
+        j, n = max(shared.items(), key=lambda x: x[1], default=(None, 0))
+        if n >= SHARED_SAMPLES:
+            a = flights[j]
+            raise DataError(f"{where(f)}: {n} of its {len(keys)} distinct samples are the same samples as in "
+                            f"{where(a)}; a flight "
+                            "must be in the data once (a copy under another name, in part or with its time moved, "
+                            "leaks between training and test)")
 
 
 def session_of(name: str) -> str:
@@ -541,7 +557,7 @@ def atomic_dir(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike] =
         tmp = c.temporary()
         try:
             yield tmp
-            (tmp / OWNER).write_text("written by a nanosysid stage; the stage replaces this folder as a whole\n")
+            (tmp / OWNER).write_text(c.mark(tmp))
             os.chmod(tmp, 0o777 & ~_umask())
             c.done(tmp)
             if path.exists():

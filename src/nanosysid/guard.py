@@ -41,7 +41,8 @@ __all__ = ["Claim", "claim", "stage_run", "stage_name", "declared", "record_path
 API = "python"  # the writer outside any stage
 TMP = "nanosysid-"  # our temporaries: .<name>.nanosysid-<random>.tmp / .old
 _SUFFIX = ".nanosysid"  # the record and lock beside an output
-OWNER = ".nanosysid-output"  # the mark inside a folder a stage wrote (kept as it was: it is part of the folder's bytes)
+OWNER = ".nanosysid-output"  # the mark inside a folder a stage wrote: which stage, where, which files
+_MARK_HEAD = "written by a nanosysid stage; the stage replaces this folder as a whole\n"
 
 
 @dataclass
@@ -253,6 +254,18 @@ def _md5(path: Path) -> str:
     return h.hexdigest()
 
 
+def _read_mark(path: Path) -> dict | None:
+    """The stage, path and files of a folder's mark :data:`OWNER`; None where there is none or it
+    says nothing of them (then the folder is not known to be a stage's)."""
+    try:
+        head, _, body = path.read_text().partition("\n")
+        mark = json.loads(body)
+    except (OSError, UnicodeDecodeError, ValueError):
+        return None
+    ok = head + "\n" == _MARK_HEAD and isinstance(mark, dict) and isinstance(mark.get("path"), str)
+    return mark if ok else None
+
+
 def _files(folder: Path) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*") if not p.is_dir())
 
@@ -291,6 +304,15 @@ class Claim:
         os.ftruncate(self.fd, 0)
         os.pwrite(self.fd, (json.dumps(rec, indent=1, sort_keys=True) + "\n").encode(), 0)
 
+    def mark(self, tmp: Path) -> str:
+        """The text of the mark :data:`OWNER` of the folder being written in ``tmp``: the stage, the
+        output's name and the files, so that a copy of the folder under another name (``cp -r``),
+        or one whose record beside it was lost, is not taken for the stage's own output there.
+        The name only, as in the record: the same output written anywhere has the same bytes."""
+        files = [f for f in _files(tmp) if f != OWNER]
+        return _MARK_HEAD + json.dumps({"stage": self.stage, "path": self.path.name, "files": files},
+                                       sort_keys=True) + "\n"
+
     def forget(self, tmp: Path) -> None:
         """The temporary folder is swapped in or removed: what is written there now is checked."""
         if _resolve(tmp) in _SCRATCH:
@@ -306,11 +328,14 @@ def _read_record(rec: Path) -> dict[str, Any] | None:
 
 
 def _check_inputs(path: Path, inputs: Sequence[Path], what: str) -> None:
-    out = _resolve(path)
+    # as written and with every link followed: a link may lead an output onto an input
+    outs = {_resolve(path), Path(os.path.realpath(path))}
     for inp in inputs:
-        rel = _overlaps(out, inp)
-        if rel:
-            raise ConfigError(f"{path}: the output {rel} {what} {inp}; choose another output path")
+        for out in outs:
+            for i in {inp, Path(os.path.realpath(inp))}:
+                rel = _overlaps(out, i)
+                if rel:
+                    raise ConfigError(f"{path}: the output {rel} {what} {inp}; choose another output path")
 
 
 def _restored(path: Path, run: _Run | None) -> bool:
@@ -354,9 +379,23 @@ def _ours(path: Path, kind: str, stage: str, rec: dict | None, run: _Run | None)
             return
         raise ConfigError(f"{path}: exists and no run of stage {stage} wrote it; refusing to overwrite it "
                           "(move it away or choose another path)")
-    # a folder a stage marked (written before records existed, or restored around DVC's deleted
-    # outputs); which stage may write where was checked against dvc.yaml before
-    if not any(path.iterdir()) or (path / OWNER).is_file():
+    # a folder a stage marked (restored by DVC, whose checkout brings no record): the stage's own
+    # only where its mark says this stage wrote it here, and holds no file the stage did not write
+    if not any(path.iterdir()):
+        return
+    mark = _read_mark(path / OWNER)
+    if mark is not None:
+        if mark.get("stage") != stage:
+            raise ConfigError(f"{path}: marked as the output of stage {mark.get('stage')}, not of {stage}; refusing to "
+                              "replace it (choose a new or empty folder)")
+        if mark["path"] != path.name:
+            raise ConfigError(f"{path}: a copy of stage {stage}'s output {mark['path']} (its mark says so), with no "
+                              "record of a run writing here; refusing to replace it (choose a new or empty folder)")
+        foreign = [f for f in _files(path) if f != OWNER and f not in set(mark.get("files") or [])]
+        if foreign:
+            raise ConfigError(f"{path / foreign[0]}: not written by stage {stage} (" + (
+                f"and {len(foreign) - 1} more " if len(foreign) > 1 else "") +
+                "in its output folder); move it out, the stage replaces the folder as a whole")
         return
     raise ConfigError(f"{path}: holds files no run of stage {stage} wrote; refusing to replace it "
                       "(choose a new or empty folder)")
@@ -375,6 +414,9 @@ def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathL
         path.parent.mkdir(parents=True, exist_ok=True)
         yield Claim(path, kind, stage, scratch=True)
         return
+    if os.path.islink(path):
+        raise ConfigError(f"{path}: a link (to {os.readlink(path)}); a stage replaces its output as a whole, which "
+                          "would put a plain file or folder where the link was: give the link's target, or another path")
     _check_inputs(path, [_resolve(i) for i in inputs], "the input")
     if run is not None:
         _check_inputs(path, run.inputs, "the stage's input")

@@ -259,10 +259,12 @@ def with_inertia_range(fit: Fit, inertia_z: float, inertia_z_range: Sequence[flo
 
 def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, polyorder: int = 3) -> tuple[Fit, Fit]:
     """The thrust fit (k_F) and the yaw-moment fit (k_M) on ``flights``, both by the paper's
-    method (least squares)."""
+    method (least squares); a thrust fit the vehicle cannot have is refused (:func:`check_thrust`)."""
     if not flights:
         raise DataError("identify: no training flight to fit k_F and k_M on")
-    return fit_thrust(flights, vehicle), fit_yaw_moment(flights, vehicle, window=window, polyorder=polyorder)
+    thrust = fit_thrust(flights, vehicle)
+    check_thrust(thrust, vehicle)
+    return thrust, fit_yaw_moment(flights, vehicle, window=window, polyorder=polyorder)
 
 
 # how far from the vehicle's nominal an identified coefficient may lie: k_F is determined to a
@@ -274,41 +276,54 @@ PLAUSIBLE_FACTOR = {"k_F": 1.25, "k_M / k_F": 10.0}
 MIN_THRUST_R2 = 0.5  # the thrust must explain most of the vertical force, or the data are not flight
 
 
+def _where(name: str, fit: Fit) -> str:
+    ci = "" if fit.ci95 is None else f", 95 % interval {fit.ci95[0]:.4g} to {fit.ci95[1]:.4g}"
+    return f"identify: {name} = {fit.coef:.4g}{ci}, R² {fit.r2:.3f} ({fit.flights} flight(s), {fit.estimator})"
+
+
+def _off(value: float, nominal: float, name: str) -> bool:
+    k = PLAUSIBLE_FACTOR[name]
+    return not (np.isfinite(value) and nominal / k <= value <= nominal * k)
+
+
+def check_thrust(thrust: Fit, vehicle: Vehicle) -> None:
+    """Refuse a thrust fit the vehicle cannot have: R² below :data:`MIN_THRUST_R2`, or k_F
+    further than :data:`PLAUSIBLE_FACTOR` from the nominal ``vehicle``'s (a unit mistake: rpm
+    for rad/s, gravity left out of the accelerometer, a wrong motor pole-pair count).
+
+    Raises:
+        DataError: naming the estimate, its interval and R², and what to check.
+    """
+    if not thrust.r2 >= MIN_THRUST_R2:
+        raise DataError(f"{_where('k_F', thrust)}: the thrust explains less than {MIN_THRUST_R2:g} of the vertical "
+                        "force; check that the accelerometer and the rotor speeds were recorded together, and the "
+                        "accelerometer's unit (m/s², with gravity)")
+    if _off(thrust.coef, vehicle.k_f, "k_F"):
+        raise DataError(f"{_where('k_F', thrust)}: {thrust.coef / vehicle.k_f:.3g} times the vehicle's nominal "
+                        f"{vehicle.k_f:.4g}, outside 1/{PLAUSIBLE_FACTOR['k_F']:g} to {PLAUSIBLE_FACTOR['k_F']:g}; check "
+                        "the rotor speeds' unit (rad/s: the topic map's motors.pole_pairs and erpm_unit), the "
+                        "accelerometer's (m/s², with gravity) and vehicle.mass, or set vehicle.k_f for other propellers")
+
+
 def check_plausible(thrust: Fit, yaw: Fit, vehicle: Vehicle) -> None:
     """Refuse coefficients the vehicle cannot have, or that the data do not determine, before they
-    are written: k_F, or the yaw torque per thrust k_M / k_F, further than :data:`PLAUSIBLE_FACTOR`
-    from the nominal ``vehicle``'s (a unit mistake: rpm for rad/s, gravity left out of the
-    accelerometer, a wrong motor pole-pair count), a thrust fit with R² below :data:`MIN_THRUST_R2`, or a 95 % interval that holds zero.
+    are written: the thrust fit as :func:`check_thrust` does, the yaw torque per thrust k_M / k_F
+    further than :data:`PLAUSIBLE_FACTOR` from the nominal ``vehicle``'s, or a 95 % interval that
+    holds zero.
 
     Raises:
         DataError: naming the coefficient, its estimate, interval and R², and what would help.
     """
-    def where(name: str, fit: Fit) -> str:
-        ci = "" if fit.ci95 is None else f", 95 % interval {fit.ci95[0]:.4g} to {fit.ci95[1]:.4g}"
-        return f"identify: {name} = {fit.coef:.4g}{ci}, R² {fit.r2:.3f} ({fit.flights} flight(s), {fit.estimator})"
-
-    def off(value: float, nominal: float, name: str) -> bool:
-        k = PLAUSIBLE_FACTOR[name]
-        return not (np.isfinite(value) and nominal / k <= value <= nominal * k)
-
-    if not thrust.r2 >= MIN_THRUST_R2:
-        raise DataError(f"{where('k_F', thrust)}: the thrust explains less than {MIN_THRUST_R2:g} of the vertical "
-                        "force; check that the accelerometer and the rotor speeds were recorded together, and the "
-                        "accelerometer's unit (m/s², with gravity)")
-    if off(thrust.coef, vehicle.k_f, "k_F"):
-        raise DataError(f"{where('k_F', thrust)}: {thrust.coef / vehicle.k_f:.3g} times the vehicle's nominal "
-                        f"{vehicle.k_f:.4g}, outside 1/{PLAUSIBLE_FACTOR['k_F']:g} to {PLAUSIBLE_FACTOR['k_F']:g}; check "
-                        "the rotor speeds' unit (rad/s: the topic map's motors.pole_pairs and erpm_unit), the "
-                        "accelerometer's (m/s², with gravity) and vehicle.mass, or set vehicle.k_f for other propellers")
+    check_thrust(thrust, vehicle)
     arm, nominal_arm = yaw.coef / thrust.coef, vehicle.k_m / vehicle.k_f
-    if off(arm, nominal_arm, "k_M / k_F"):
-        raise DataError(f"{where('k_M', yaw)}: k_M / k_F = {arm * 1e3:.3g} mm, more than "
+    if _off(arm, nominal_arm, "k_M / k_F"):
+        raise DataError(f"{_where('k_M', yaw)}: k_M / k_F = {arm * 1e3:.3g} mm, more than "
                         f"{PLAUSIBLE_FACTOR['k_M / k_F']:g} times "
                         f"off the vehicle's nominal {nominal_arm * 1e3:.3g} mm; the flights do not determine the yaw "
                         "torque (fly a yaw calibration flight, or flights with yaw manoeuvres)")
     for name, fit in (("k_F", thrust), ("k_M", yaw)):
         if fit.ci95 is not None and np.all(np.isfinite(fit.ci95)) and fit.ci95[0] <= 0:
-            raise DataError(f"{where(name, fit)}: the interval holds zero, so the flights do not determine it; "
+            raise DataError(f"{_where(name, fit)}: the interval holds zero, so the flights do not determine it; "
                             "add flights that excite it (a yaw calibration flight for k_M)")
 
 
@@ -348,6 +363,17 @@ def identified_vehicle(vehicle: Vehicle, path: str | Path | None) -> Vehicle:
     if path is None:
         return vehicle
     d = read_identified(path)
+    k_f, k_m = float(d["k_f"]), float(d["k_m"])
+    # the identify stage writes nothing outside these bounds: a value outside is a file edited by
+    # hand or written for another vehicle, which would be scored as if it were this one's
+    bounds = (("k_f", k_f, vehicle.k_f, PLAUSIBLE_FACTOR["k_F"], "vehicle.k_f"),
+              ("k_m", k_m / k_f, vehicle.k_m / vehicle.k_f, PLAUSIBLE_FACTOR["k_M / k_F"], "vehicle.k_m"))
+    for key, value, nominal, factor, setting in bounds:
+        if not nominal / factor <= value <= nominal * factor:
+            what = "k_f" if key == "k_f" else "k_m / k_f"
+            raise DataError(f"{path}: field {key!r} is {d[key]!r}: {what} = {value:.4g}, more than {factor:g} times off "
+                            f"the vehicle's {nominal:.4g} ({setting}); the identify stage writes this file (rerun it), "
+                            f"or set {setting} for another vehicle")
     # which file a run's k_F and k_M came from is part of its record (an override may move it)
-    _log.info("k_F = %.4g, k_M = %.4g from %s", float(d["k_f"]), float(d["k_m"]), path)
-    return dataclasses.replace(vehicle, k_f=float(d["k_f"]), k_m=float(d["k_m"]))
+    _log.info("k_F = %.4g, k_M = %.4g from %s", k_f, k_m, path)
+    return dataclasses.replace(vehicle, k_f=k_f, k_m=k_m)

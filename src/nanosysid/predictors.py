@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from nanosysid.discover.model import load_discovered
+from nanosysid.dataio import SAMPLE_PERIOD
 from nanosysid.errors import ConfigError, ExportError
 from nanosysid.export import cost as costs
 from nanosysid.export import steps
@@ -59,6 +60,16 @@ def _vehicle(v: Any) -> Vehicle:
     return v if isinstance(v, Vehicle) else Vehicle.from_mapping(v)
 
 
+def _check_step(name: str, dt: Any, substeps: Any) -> None:
+    """A model steps once per sample of the benchmark's data (``dt`` its period); ``substeps``
+    integrate finer within it."""
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not abs(dt / SAMPLE_PERIOD - 1) <= 1e-9:
+        raise ConfigError(f"{name}: dt = {dt!r} s, but the benchmark's samples are {SAMPLE_PERIOD:g} s apart and a "
+                          "model steps once per sample (substeps integrate finer)")
+    if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
+        raise ConfigError(f"{name}: substeps = {substeps!r}, expected a positive whole number")
+
+
 def _naive(**options: Any) -> Predictor:
     if options:
         raise ConfigError(f"naive model takes no options, got {sorted(options)}")
@@ -67,6 +78,7 @@ def _naive(**options: Any) -> Predictor:
 
 def _physics(*, angular_dynamics: bool, name: str) -> Callable[..., Predictor]:
     def build(*, vehicle: Any = None, dt: float = 0.01, substeps: int = 1, identified: str | None = None) -> Predictor:
+        _check_step(name, dt, substeps)
         v = identified_vehicle(_vehicle(vehicle), identified)
         if identified is None:
             # a user's row differs from the pipeline's here (identified_vehicle logs the file otherwise)

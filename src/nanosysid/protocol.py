@@ -393,6 +393,11 @@ def evaluate(
     horizon, batch_size = _count(horizon, "horizon"), _count(batch_size, "batch_size")
     if keep is not None:
         keep = _count(keep, "keep")
+    names = [f.name for f in flights]
+    twice = sorted({n for n in names if names.count(n) > 1})
+    if twice:
+        raise DataError(f"evaluate: flight name(s) {', '.join(twice)} given more than once; each flight is scored "
+                        "under its name, so one would be left out")
     both = {f.name: _score_flight(predict, f, horizon, batch_size, keep) for f in flights}
     per = {n: s for n, (s, _) in both.items()}
     mae = {k: np.mean([s.mae[k] for s in per.values()], axis=0) for k in metrics.QUANTITIES}

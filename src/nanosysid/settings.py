@@ -29,7 +29,8 @@ from typing import Any, Callable, Iterator
 
 from omegaconf import OmegaConf
 
-__all__ = ["CONF", "SCHEMA", "defaults", "configured", "kind_of", "fits", "describe", "leaves", "SOURCES"]
+__all__ = ["CONF", "SCHEMA", "defaults", "configured", "kind_of", "fits", "describe", "check_value", "leaves",
+           "SOURCES"]
 
 # conf/ of the project this library belongs to (the source checkout that `make venv` installs)
 CONF = Path(__file__).resolve().parents[2] / "conf"
@@ -173,6 +174,25 @@ def fits(value: object, kind: str | tuple[str, ...]) -> bool:
     return value > 0 if kind in (POSITIVE, COUNT, COUNT_OR_NULL) else value >= 0
 
 
+def check_value(key: str, value: object, *, where: str) -> None:
+    """Refuse a value of the setting ``key`` that is not of its schema kind (a list's every element
+    checked; a mapping or an object is checked where it is used).
+
+    Raises:
+        ConfigError: naming ``where``, the setting, the value and what it must be.
+    """
+    from nanosysid.errors import ConfigError
+
+    kind = kind_of(key)
+    if kind is None or isinstance(value, dict) or dataclasses.is_dataclass(value):
+        return
+    for v in value if isinstance(value, (list, tuple)) else (value,):
+        if isinstance(v, (dict, list, tuple)) or dataclasses.is_dataclass(v):
+            continue
+        if not fits(v, kind):
+            raise ConfigError(f"{where}: {key.rsplit('.', 1)[-1]} = {value!r} ({key}), expected {describe(kind)}")
+
+
 def leaves(node: object, key: str = "") -> Iterator[tuple[str, object]]:
     """Every ``(dotted key, value)`` of a nested mapping; a list is one value."""
     if isinstance(node, dict):
@@ -221,6 +241,18 @@ def configured(file: str, *keys: str, own: tuple[str, ...] = ()) -> Callable[[ty
         for name in names:
             v = values[name]
             setattr(cls, name, tuple(v) if isinstance(v, list) else v)
+        prefix = ".".join([Path(file).parent.name, *keys])
+        own_check = cls.__dict__.get("__post_init__")
+
+        def __post_init__(self) -> None:
+            # the schema's bounds hold wherever the dataclass is made, from a config or from
+            # Python (a vehicle of mass -1 kg is refused, not scored)
+            for name in names:
+                check_value(f"{prefix}.{name}", getattr(self, name), where=cls.__name__)
+            if own_check is not None:
+                own_check(self)
+
+        cls.__post_init__ = __post_init__
         return dataclasses.dataclass(frozen=True)(cls)
 
     return wrap

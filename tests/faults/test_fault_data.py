@@ -8,7 +8,7 @@ import shutil
 import pytest
 
 from nanosysid import protocol
-from nanosysid.dataio import write_flight_csv
+from nanosysid.dataio import Flight, read_flight_csv, write_flight_csv
 from nanosysid.errors import DataError
 from nanosysid.splitting import split_folder
 from nanosysid.synthetic import synthetic_flights
@@ -46,6 +46,23 @@ def copy(src, dst):
     shutil.copyfile(src, dst)
 
 
+def near_copy(src, dst, rows=slice(None), shift=0.0):
+    """``src``'s rows ``rows`` written as the flight ``dst``, its time moved by ``shift`` s: no
+    byte of the file is the same as ``src``'s, the samples are."""
+    f = read_flight_csv(src)
+    f = Flight(dst.stem, f.t[rows] + shift, f.u[rows], f.y[rows], {k: v[rows] for k, v in f.extra.items()})
+    write_flight_csv(f, dst)
+
+
+NEAR = [
+    ("a test flight with its time moved by 100 s", dict(shift=100.0), "70 of its 70 distinct samples are the same"),
+    ("the first 40 rows of a test flight", dict(rows=slice(0, 40)), "40 of its 70 distinct samples are the same"),
+    ("the last 30 rows of a test flight", dict(rows=slice(-30, None)), "30 of its 70 distinct samples are the same"),
+    ("25 rows from inside a test flight, moved 3 s", dict(rows=slice(20, 45), shift=3.0),
+     "25 of its 70 distinct samples are the same"),
+]
+
+
 CASES = [
     # (case, change to the bench folder, change to the flat folder, words)
     ("run1 and run01", lambda r: copy(r / "bench/train/square_20250101_run1.csv", r / "bench/train/square_20250101_run01.csv"),
@@ -64,7 +81,9 @@ CASES = [
      None, "the same samples as"),
     ("one flight in train and test", lambda r: copy(r / "bench/test/melon_20250101_run1.csv", r / "bench/train/melon_20250101_run1.csv"),
      None, "in both train/ and test/"),
-]
+] + [(case, lambda r, kw=kw: near_copy(r / "bench/test/melon_20250101_run1.csv", r / "bench/train/square_20250101_run7.csv", **kw),
+      lambda r, kw=kw: near_copy(r / "flat/melon_20250101_run1.csv", r / "flat/square_20250101_run7.csv", **kw), words)
+     for case, kw, words in NEAR]
 
 
 MATRIX = [(entry, case, change, words) for case, bench, flat, words in CASES
@@ -84,3 +103,14 @@ def test_a_flight_twice_or_out_of_sight_is_one_clear_error(folder, entry, case, 
 def test_the_clean_folders_load(folder):
     assert [f.name for f in load_bench(folder).test] == NAMES[2:]
     assert split_flat(folder)["test"]["samples"] == 2 * 70
+
+
+def test_a_flight_at_rest_beside_another_is_no_copy(tmp_path):
+    # two flights each repeating one sample (on the ground, motors off) share it: one distinct
+    # sample, not a copy; the flights stay in
+    rest = synthetic_flights(["square_20250101_run1", "melon_20250101_run1"], 70, seed=2)
+    for f in rest:
+        f.y[:30] = f.y[0] * 0 + rest[0].y[0]
+        f.u[:30] = 0.0
+        write_flight_csv(f, tmp_path / "flat" / f"{f.name}.csv")
+    assert split_folder(tmp_path / "flat", tmp_path / "split", train=["square"], test=["melon"], horizon=10)

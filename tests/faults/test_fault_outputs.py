@@ -10,6 +10,7 @@ through the project's own writers (:func:`nanosysid.dataio.atomic_file`,
 from __future__ import annotations
 
 import fcntl
+import re
 import os
 from pathlib import Path
 
@@ -26,7 +27,12 @@ CLASS = "data loss"
 
 def snapshot(root: Path) -> dict[str, bytes | None]:
     """Every path under ``root`` with its bytes (None for a folder)."""
-    return {str(p.relative_to(root)): (None if p.is_dir() else p.read_bytes()) for p in sorted(root.rglob("*"))}
+    def content(p: Path) -> bytes | None:
+        if p.is_symlink():
+            return b"-> " + os.readlink(p).encode()
+        return None if p.is_dir() else p.read_bytes()
+
+    return {str(p.relative_to(root)): content(p) for p in sorted(root.rglob("*"))}
 
 
 def user_tree(root: Path) -> None:
@@ -191,3 +197,93 @@ def test_the_record_and_lock_live_beside_the_output_not_in_it(tmp_path):
     assert guard.record_path(tmp_path / "out").is_file()
     with open(guard.record_path(tmp_path / "out")) as fh:  # and the lock is free again
         fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
+def _stage_dir(path: Path, stage: str, files=("f.txt",)) -> None:
+    with _as_stage(stage):
+        with atomic_dir(path) as tmp:
+            for f in files:
+                (tmp / f).write_text("the stage's")
+
+
+class _as_stage:
+    """Inside the block, writes are those of a run of ``stage`` (as under ``stages.common.run_stage``)."""
+
+    def __init__(self, stage: str) -> None:
+        self.stage = stage
+
+    def __enter__(self):
+        self.token = guard._run.set(guard._Run(self.stage))
+        return self
+
+    def __exit__(self, *exc):
+        guard._run.reset(self.token)
+
+
+def _record_gone(root: Path, out: str) -> None:
+    guard.record_path(root / out).unlink()
+
+
+# (case, what the user does to a stage's output folder "sync" before the stage "extract" or "sync"
+# writes to the path given, the path, the writing stage, the words)
+COPIES = [
+    ("a cp -r copy of an output, then another stage into it",
+     lambda r: os.system(f"cp -r '{r / 'sync'}' '{r / 'backup'}'"), "backup", "extract", "marked as the output of stage sync"),
+    ("a cp -r copy of an output, then the same stage into it",
+     lambda r: os.system(f"cp -r '{r / 'sync'}' '{r / 'backup'}'"), "backup", "sync", "a copy of stage sync's output"),
+    ("a copy with the user's notes added",
+     lambda r: (os.system(f"cp -r '{r / 'sync'}' '{r / 'backup'}'"), (r / "backup" / "notes.txt").write_text("mine")),
+     "backup", "sync", "a copy of stage sync's output"),
+    ("the record removed, a user's file added",
+     lambda r: (_record_gone(r, "sync"), (r / "sync" / "notes.txt").write_text("mine")), "sync", "sync",
+     "notes.txt: not written by stage sync"),
+    ("the record removed, the output of another stage",
+     lambda r: _record_gone(r, "sync"), "sync", "extract", "marked as the output of stage sync"),
+    ("a copy moved over a new name, its record left behind",
+     lambda r: os.replace(r / "sync", r / "moved"), "moved", "sync", "a copy of stage sync's output"),
+]
+
+
+@pytest.mark.parametrize("case,change,out,stage,words", COPIES, ids=[c[0] for c in COPIES])
+def test_a_copy_of_an_output_is_never_taken_for_the_stages_own(tmp_path, monkeypatch, case, change, out, stage, words):
+    monkeypatch.chdir(tmp_path)
+    _stage_dir(Path("sync"), "sync")
+    change(tmp_path)
+    before = snapshot(tmp_path)
+    with pytest.raises(ConfigError, match=words):
+        _stage_dir(Path(out), stage, files=("other.txt",))
+    assert snapshot(tmp_path) == before
+
+
+def test_the_stages_own_output_restored_without_its_record_is_replaced(tmp_path, monkeypatch):
+    # DVC's checkout brings the folder back without the record beside it: the mark tells it is
+    # the stage's own, written here
+    monkeypatch.chdir(tmp_path)
+    _stage_dir(Path("sync"), "sync")
+    _record_gone(tmp_path, "sync")
+    _stage_dir(Path("sync"), "sync", files=("g.txt",))
+    assert sorted(p.name for p in (tmp_path / "sync").iterdir()) == [OWNER, "g.txt"]
+
+
+# (case, link name -> its target relative to the tree, writer, output, inputs, words)
+LINKS = [
+    ("file output that is a link to a user's file", ("link.md", "notes.md"), write_file, "link.md", [], "a link (to"),
+    ("folder output that is a link to a user's folder", ("linked", "data/sub"), write_dir, "linked", [], "a link (to"),
+    ("folder output that is a link to its input", ("linked", "data"), write_dir, "linked", ["data"], "a link (to"),
+    ("dangling link as the output", ("gone", "nowhere"), write_file, "gone", [], "a link (to"),
+    ("file inside a linked folder that is its input", ("view", "data"), write_file, "view/new.csv", ["data"],
+     "lies inside the input"),
+    ("folder inside a linked folder that is its input", ("view", "data"), write_dir, "view/out", ["data"],
+     "lies inside the input"),
+]
+
+
+@pytest.mark.parametrize("case,link,writer,out,inputs,words", LINKS, ids=[c[0] for c in LINKS])
+def test_a_link_never_leads_a_write_onto_what_it_points_at(tmp_path, case, link, writer, out, inputs, words):
+    user_tree(tmp_path)
+    (tmp_path / link[0]).symlink_to(tmp_path / link[1])
+    before = snapshot(tmp_path)
+    with pytest.raises(ConfigError, match=re.escape(words)):
+        writer(tmp_path / out, **({"inputs": [tmp_path / i for i in inputs]} if inputs else {}))
+    assert snapshot(tmp_path) == before
+    assert (tmp_path / link[0]).is_symlink()

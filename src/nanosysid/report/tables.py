@@ -21,6 +21,23 @@ _LABEL = {"p": "MAE_p", "v": "MAE_v", "R": "MAE_R", "w": "MAE_ω"}
 _TEX_LABEL = {"p": r"\mathrm{MAE}_{p,h}", "v": r"\mathrm{MAE}_{v,h}", "R": r"\mathrm{MAE}_{R,h}",
               "w": r"\mathrm{MAE}_{\omega,h}"}
 
+def _horizons(rows: Mapping[str, Scores], horizons: Sequence[int]) -> tuple[int, list[int]]:
+    """The rows' one horizon H, and the table's horizons within it (an evaluation shortened to
+    H = 20 has no MAE at h = 50 to show).
+
+    Raises:
+        DataError: rows scored at different horizons, whose sums are not comparable.
+    """
+    if not rows:
+        raise ValueError("no rows to tabulate")
+    hs = {name: s.horizon for name, s in rows.items()}
+    if len(set(hs.values())) > 1:
+        raise DataError("scores of different horizons cannot share a table: " + ", ".join(
+            f"{n} H = {h}" for n, h in hs.items()) + "; evaluate every model at one eval.horizon")
+    H = next(iter(hs.values()))
+    return H, [h for h in horizons if 1 <= h <= H]
+
+
 def _results_cells(rows: Mapping[str, Scores], horizons: Sequence[int], reference: Sequence[str]):
     """Values ``(models, columns)``, which of them is the best of its column, and which rows
     compete (the ``reference`` rows, the oracle, are a limit rather than a model)."""
@@ -46,9 +63,7 @@ def results_table_md(rows: Mapping[str, Scores], horizons: Sequence[int] = (1, 1
     The best (lowest) value of each column among the models is in bold; the ``reference``
     rows (the oracle, a limit rather than a model) do not compete.
     """
-    if not rows:
-        raise ValueError("no rows to tabulate")
-    H = next(iter(rows.values())).horizon
+    H, horizons = _horizons(rows, horizons)
     head = ["Model"]
     for k in QUANTITIES:
         head += [f"{_LABEL[k]} h={h} [{UNITS[k]}]" for h in horizons]
@@ -76,7 +91,7 @@ def results_table_tex(rows: Mapping[str, Scores], horizons: Sequence[int] = (1, 
     """The results table as a LaTeX ``table*`` (booktabs), the paper's layout."""
     if not rows:
         raise ValueError("no rows to tabulate")
-    H = next(iter(rows.values())).horizon
+    H, horizons = _horizons(rows, horizons)
     n = len(horizons) + 1
     values, best, competing = _results_cells(rows, horizons, reference)
     heads = [rf"\multicolumn{{{n}}}{{c{'|' if i < len(QUANTITIES) - 1 else ''}}}{{${_TEX_LABEL[k]}$ [{UNITS[k]}]}}"
@@ -160,6 +175,7 @@ def load_scores(eval_dir: str | Path, names: Sequence[str]) -> dict[str, Scores]
         if not f.exists():
             raise DataError(f"{f}: no evaluation of model {name!r}")
         rows[name] = Scores.from_dict(json.loads(f.read_text()))
+    _horizons(rows, ())  # one horizon, checked before any figure or table is written
     return rows
 
 

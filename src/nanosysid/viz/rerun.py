@@ -154,4 +154,6 @@ def write_recording(flight: Flight, rollouts: Mapping[str, Kept], path: Path, *,
         rec.flush()
         rec.disconnect()
         # the SDK's random ids and wall-clock times replaced: the same flight and models, the same bytes
-        tmp.write_bytes(rrd.with_footer(rrd.canonical(tmp.read_bytes(), recording_id)))
+        data = rrd.with_footer(rrd.canonical(tmp.read_bytes(), recording_id))
+        rrd.check(data)  # a whole stream, or nothing is written
+        tmp.write_bytes(data)

@@ -32,7 +32,7 @@ import lz4.block
 import pyarrow as pa
 import xxhash
 
-__all__ = ["canonical", "with_footer"]
+__all__ = ["canonical", "with_footer", "check"]
 
 _END, _SET_STORE_INFO, _ARROW_MSG = 0, 1, 2  # message kinds
 _NONE, _LZ4 = 1, 2  # rerun.common.v1alpha1.Compression
@@ -234,3 +234,34 @@ def with_footer(data: bytes) -> bytes:
     struct.pack_into("<QQI", trailer, 0, offset, len(footer), xxhash.xxh32_intdigest(footer, seed=_FOOTER_SEED))
     header = struct.pack("<QQ", 0, len(footer))  # the footer's message: kind 0 (end), its length
     return data[:offset - 16] + header + footer + bytes(trailer)
+
+
+def check(data: bytes) -> None:
+    """Refuse bytes that are not one whole RRD stream with its footer: the header, every message
+    whole up to the end message, and the trailer whose footer offset, size and checksum agree.
+    (``rerun rrd verify`` accepts a cut or random file.)
+
+    Raises:
+        ValueError: naming what is wrong and where.
+    """
+    if data[:4] != b"RRF2":
+        raise ValueError("not an RRD stream (no RRF2 header)")
+    if len(data) < 12 + 16 + _TRAILER or data[-12:-4] != b"RRF2FOOT":
+        raise ValueError(f"no RRD footer at the end of {len(data)} bytes (a cut file?)")
+    i = 12
+    while True:
+        if i + 16 > len(data):
+            raise ValueError(f"message header at byte {i} runs past the end ({len(data)} bytes)")
+        kind, n = struct.unpack_from("<QQ", data, i)
+        if i + 16 + n > len(data) - _TRAILER:
+            raise ValueError(f"message at byte {i} ({n} bytes) runs past the end")
+        if kind == _END:
+            break
+        if kind not in (_SET_STORE_INFO, _ARROW_MSG, 3):
+            raise ValueError(f"message at byte {i} of unknown kind {kind}")
+        i += 16 + n
+    offset, size, checksum = struct.unpack_from("<QQI", data, len(data) - _TRAILER)
+    if offset != i + 16 or offset + size != len(data) - _TRAILER:
+        raise ValueError(f"the trailer's footer ({offset}, {size} bytes) is not the end message at byte {i}")
+    if xxhash.xxh32_intdigest(data[offset:offset + size], seed=_FOOTER_SEED) != checksum:
+        raise ValueError("the footer's checksum does not match")
