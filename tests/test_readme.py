@@ -287,3 +287,43 @@ def test_the_readmes_bench_command_names_benchmarks_that_exist():
         assert "\ndef main(" in source and source.startswith('"""'), name
     r = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "run.py"), "nosuch"], capture_output=True, text=True)
     assert r.returncode == 2 and "unknown benchmark nosuch: choose from" in r.stderr
+
+
+# every shell command of the README, by the start of its line, and where it is run as written
+# (file::test); a command added to the README without a runner fails the census below
+RUN_BY = {
+    "make repro": "tests/test_repro.py::test_make_repro_and_make_test_write_no_tracked_file_and_install_nothing",
+    "make test": ".ci/run",
+    "make bench": "tests/test_readme.py::test_the_readmes_bench_command_names_benchmarks_that_exist",
+    ".venv/bin/rerun ": "tests/test_readme.py::test_the_readmes_recording_command_names_a_recording_visualize_writes"
+                        "_and_the_viewer_it_installs",
+    "dvc exp run -S data=csv": "tests/test_dvc.py::test_a_users_own_flights_run_through_one_experiment_without_the"
+                               "_simulators_stages",
+    "dvc exp run -S models.physics.substeps=4": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed"
+                                                "_and_share_the_run_cache",
+    "dvc exp show": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache",
+    "dvc exp run --queue": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache",
+    "dvc queue start": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache",
+    "python -m stages.campaign": "tests/test_launcher.py::test_campaign_gives_the_same_bytes_with_one_or_two_workers",
+    "dvc exp run -S launcher=slurm": "tests/test_readme.py::test_the_readmes_slurm_experiment_composes_and_says_what"
+                                     "_this_machine_lacks",
+    "dvc remote add": "tests/test_readme.py::test_the_readmes_minio_remote_commands_configure_dvc",
+    "dvc remote modify": "tests/test_readme.py::test_the_readmes_minio_remote_commands_configure_dvc",
+    "dvc push --run-cache": "tests/test_dvc.py::test_outputs_and_run_cache_round_trip_through_a_remote",
+    "dvc pull --run-cache": "tests/test_dvc.py::test_outputs_and_run_cache_round_trip_through_a_remote",
+    "python -m nanosysid.config compose rig.local=": "tests/test_readme.py::test_the_readmes_rig_local_compose_writes"
+                                                    "_the_folder_into_the_rigs_params",
+}
+
+
+def test_every_readme_command_has_a_test_that_runs_it():
+    text = (ROOT / "README.md").read_text()
+    lines = [line.split("  #")[0].strip() for block in re.findall(r"```bash\n(.*?)```", text, flags=re.S)
+             for line in block.splitlines() if line.strip() and not line.startswith("#")]
+    unrun = [line for line in lines if not any(line.startswith(k) for k in RUN_BY)]
+    assert not unrun, f"README commands no test runs: {unrun}"
+    for key, where in RUN_BY.items():
+        assert any(line.startswith(key) for line in lines), f"{key!r}: no longer in the README"
+        file, _, test = where.partition("::")
+        source = (ROOT / file).read_text()
+        assert not test or f"def {test}(" in source, where

@@ -322,6 +322,8 @@ def load_kept(folder: str | os.PathLike, flights: Sequence[Flight], *, horizon: 
                 raise DataError(f"{folder}: the kept rollouts of flight {f.name} have shapes {k.last.shape} and "
                                 f"{k.paths.shape}; rerun the {stage} stage")
             out[f.name] = k
+    except DataError:
+        raise
     except (OSError, ValueError, KeyError, AttributeError) as e:
         raise DataError(f"{folder}: kept rollouts unreadable ({e}); rerun the {stage} stage") from None
     return out
