@@ -24,7 +24,7 @@ from typing import Sequence
 from omegaconf import DictConfig, OmegaConf
 
 from nanosysid.errors import ConfigError
-from nanosysid.settings import describe, fits, kind_of, leaves
+from nanosysid.settings import check_value, leaves
 
 __all__ = ["compose", "compose_text", "load_params", "rederive", "interpolations", "select_groups", "apply_overrides",
            "check_values", "renamed", "RENAMED"]
@@ -213,12 +213,7 @@ def check_values(cfg: dict, where: str = "params.yaml") -> None:
         ConfigError: naming the key, the value and what it must be.
     """
     for key, value in leaves(cfg):
-        kind = kind_of(key)
-        if kind is None:  # a setting the schema does not know (a new network's arguments): its user checks it
-            continue
-        for v in value if isinstance(value, list) else [value]:
-            if not fits(v, kind):
-                raise ConfigError(f"{where}: {key} must be {describe(kind)}, got {value!r}")
+        check_value(key, value, where=where)
     filt = (cfg.get("preprocess") or {}).get("filter") or {}
     nyquist = filt.get("rate", 0) / 2
     for band in ("position", "velocity", "acceleration", "motors", "quaternion"):
@@ -267,7 +262,7 @@ def _check_choices(cfg: dict, where: str) -> None:
 def _check_protocol(cfg: dict, where: str) -> None:
     """The settings the data's rate fixes: the benchmark's flights are at 100 Hz, so the sync and
     filter grids, every model's step and the oracle's are 10 ms."""
-    from nanosysid.dataio import SAMPLE_PERIOD
+    from nanosysid.dataio import SAMPLE_PERIOD, check_step
 
     rate = 1 / SAMPLE_PERIOD
     rec = cfg.get("preprocess") or {}
@@ -279,9 +274,8 @@ def _check_protocol(cfg: dict, where: str) -> None:
     steps = [(f"models.{m}.dt", (o or {}).get("dt")) for m, o in (cfg.get("models") or {}).items() if isinstance(o, dict)]
     steps.append(("discover.oracle.dt", ((cfg.get("discover") or {}).get("oracle") or {}).get("dt")))
     for key, dt in steps:
-        if isinstance(dt, (int, float)) and abs(dt - SAMPLE_PERIOD) > 1e-9:
-            raise ConfigError(f"{where}: {key} = {dt:g} s; the flights are sampled every {SAMPLE_PERIOD:g} s, and a "
-                              "model steps once per sample (use substeps for a finer integration)")
+        if dt is not None:  # a model without a step of its own (a network, an external predictor)
+            check_step(dt, f"{where}: {key}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:

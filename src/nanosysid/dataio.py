@@ -44,8 +44,8 @@ __all__ = [
     "read_json_record",
     "json_text",
     "session_of",
-    "flight_files",
     "flight_catalog",
+    "check_step",
     "FlightFile",
     "MANIFEST",
     "check_distinct",
@@ -61,6 +61,18 @@ QUAT_COLUMNS = ["qx", "qy", "qz", "qw"]
 QUAT_NORM_TOL = 1e-3
 SAMPLE_PERIOD = 0.01  # s: the benchmark's 100 Hz, which every model and the protocol assume
 PERIOD_TOL = 0.1  # share of the period a time step may be off it (jitter)
+
+
+def check_step(dt: object, where: str) -> None:
+    """Refuse a model's step ``dt`` (s) other than the flights' :data:`SAMPLE_PERIOD`: a model steps
+    once per sample. ``where`` names the setting (``params.yaml: models.physics.dt``).
+
+    Raises:
+        ConfigError: naming ``where`` and the value.
+    """
+    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not abs(dt - SAMPLE_PERIOD) <= 1e-9:
+        raise ConfigError(f"{where} = {dt!r} s; the flights are sampled every {SAMPLE_PERIOD:g} s, and a model steps "
+                          "once per sample (use substeps for a finer integration)")
 
 _NAME = re.compile(r"^(?P<trajectory>[A-Za-z][A-Za-z0-9-]*)_(?P<date>[^_]+)_run(?P<run>\d+)$")
 _TRAJECTORY = re.compile(r"^[A-Za-z][A-Za-z0-9-]*$")
@@ -157,23 +169,6 @@ def json_text(payload, *, indent: int | None = 1, sort_keys: bool = False) -> st
     if replaced and isinstance(out, dict):
         out["non_finite"] = replaced
     return json.dumps(out, indent=indent, sort_keys=sort_keys, allow_nan=False) + "\n"
-
-
-def flight_files(folder: str | os.PathLike) -> list[Path]:
-    """The flight CSV files under ``folder``, sorted, every name checked: one :class:`DataError`
-    for a name not of the form ``<trajectory>_<date>_run<k>``, two files of one flight (``run1``
-    and ``run01``, or one name in two subfolders) and a flight file with another case of the
-    extension (``.CSV``), which would otherwise be left out without a word."""
-    folder = Path(folder)
-    files, seen = [], {}
-    for f in _csv_files(folder):
-        try:
-            trajectory, run = parse_flight_name(f.stem)
-        except ValueError as e:
-            raise DataError(f"{f}: {e}") from None
-        _check_once(seen, (trajectory, session_of(f.stem), run), f)
-        files.append(f)
-    return files
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from typing import Any, Callable
 
 from nanosysid.discover.model import load_discovered
-from nanosysid.dataio import SAMPLE_PERIOD
+from nanosysid.dataio import check_step
 from nanosysid.errors import ConfigError, ExportError
 from nanosysid.export import cost as costs
 from nanosysid.export import steps
@@ -63,9 +63,7 @@ def _vehicle(v: Any) -> Vehicle:
 def _check_step(name: str, dt: Any, substeps: Any) -> None:
     """A model steps once per sample of the benchmark's data (``dt`` its period); ``substeps``
     integrate finer within it."""
-    if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not abs(dt / SAMPLE_PERIOD - 1) <= 1e-9:
-        raise ConfigError(f"{name}: dt = {dt!r} s, but the benchmark's samples are {SAMPLE_PERIOD:g} s apart and a "
-                          "model steps once per sample (substeps integrate finer)")
+    check_step(dt, f"{name}: dt")
     if isinstance(substeps, bool) or not isinstance(substeps, int) or substeps < 1:
         raise ConfigError(f"{name}: substeps = {substeps!r}, expected a positive whole number")
 
