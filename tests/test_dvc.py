@@ -4,7 +4,6 @@ outputs and the run cache travel through a remote."""
 import os
 import shlex
 import shutil
-import re
 import subprocess
 import sys
 import time
@@ -50,13 +49,6 @@ class DvcRepo:
         self.sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", message, cwd=cwd)
 
 
-def readme_block_after(marker: str) -> list[str]:
-    """The command lines (comments cut) of the README's first ```bash block after ``marker``."""
-    text = (ROOT / "README.md").read_text()
-    block = re.search(r"```bash\n(.*?)```", text[text.index(marker):], flags=re.S).group(1)
-    return [line.split("  #")[0].strip() for line in block.splitlines() if line.strip()]
-
-
 # the campaign stage at its smallest: one world
 TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=10.0", "campaign.families.thrust_lag=0",
                  "campaign.families.turbulence=0", "campaign.families.state=0"]
@@ -88,7 +80,10 @@ EXPERIMENTS = {
 def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_repo):
     sh = dvc_repo.sh
     # the README's sweep queues one experiment per value (left unrun here: three LSTM trainings)
-    sweep, start, show = readme_block_after("**Experiments in parallel.**")
+    from test_readme import readme_commands
+
+    (sweep,), (start,) = readme_commands("dvc exp run --queue"), readme_commands("dvc queue start")
+    show = next(c for c in readme_commands("dvc exp show") if c == "dvc exp show")
     sh(*shlex.split(sweep.replace("--queue", "--queue " + " ".join(shlex.quote(a) for a in SMALL))))
     assert sh("dvc", "queue", "status").count("Queued") == 3
     sh("dvc", "queue", "remove", "--queued")

@@ -200,24 +200,9 @@ def test_the_record_and_lock_live_beside_the_output_not_in_it(tmp_path):
 
 
 def _stage_dir(path: Path, stage: str, files=("f.txt",)) -> None:
-    with _as_stage(stage):
-        with atomic_dir(path) as tmp:
-            for f in files:
-                (tmp / f).write_text("the stage's")
-
-
-class _as_stage:
-    """Inside the block, writes are those of a run of ``stage`` (as under ``stages.common.run_stage``)."""
-
-    def __init__(self, stage: str) -> None:
-        self.stage = stage
-
-    def __enter__(self):
-        self.token = guard._run.set(guard._Run(self.stage))
-        return self
-
-    def __exit__(self, *exc):
-        guard._run.reset(self.token)
+    with guard.stage_run(stage), atomic_dir(path) as tmp:
+        for f in files:
+            (tmp / f).write_text("the stage's")
 
 
 def _record_gone(root: Path, out: str) -> None:
