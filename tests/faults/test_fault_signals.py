@@ -71,8 +71,11 @@ def test_a_stage_stopped_by_a_signal_exits_non_zero_and_writes_nothing(tmp_path,
                        check=True, capture_output=True)
         assert out.read_text() == '{"last": 1}'
 
+    # as from a terminal: SIGINT at its default (pytest-xdist's workers, and jobs started in the
+    # background, ignore it, and a stage leaves an ignored signal ignored)
     p = subprocess.Popen([sys.executable, str(script), mode, str(out), str(ready), str(params)], cwd=tmp_path,
-                         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     while not ready.exists() and p.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
