@@ -45,10 +45,11 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     step = result.model.step
     effects = {name: {"params": list(entry(name).params), "coefficients": coef}
                for name, coef in step.coefficients().items()}
-    save_discovered(Path(dc.out_dir) / "model.json", result.vehicle, effects, result.model.delay,
-                    dt=step.dt, substeps=step.substeps)
     with atomic_dir(Path(dc.report_dir), inputs=[cfg.paths.split]) as tmp:
         write_report(result, tmp, nominal=_nominal_source(dc.identified))
+        # the model last, once its report is whole: a report that fails leaves no model behind
+        save_discovered(Path(dc.out_dir) / "model.json", result.vehicle, effects, result.model.delay,
+                        dt=step.dt, substeps=step.substeps)
     log.info("discover: %s; SimErr p %.3g -> %.3g, v %.3g -> %.3g, R %.3g -> %.3g, w %.3g -> %.3g", result.name,
              *(x for q in "pvRw" for x in (result.before.simerr[q], result.after.simerr[q])))
     return result

@@ -11,6 +11,7 @@ from nanosysid import sim
 from nanosysid.bags.recorder import RecorderConfig, record_flight
 from nanosysid.dataio import atomic_dir, write_flight_csv
 from nanosysid.errors import ConfigError
+from nanosysid.sim.envelope import check_flown
 from nanosysid.sim.simulator import flights_from_record, simulate_raw
 from stages.common import plain, run_stage, vehicle_of
 
@@ -33,6 +34,9 @@ def main(cfg: DictConfig) -> None:
         raise ConfigError("sim.runs: no flight to simulate")
     raw = simulate_raw(specs, vehicle=vehicle, cfg=sim_cfg, date=str(s.date))
     flights = flights_from_record(raw, vehicle=vehicle, cfg=sim_cfg)
+    # the effects above their realistic magnitude (1) are the likely cause
+    strong = ", ".join(f"{k} {v:g}" for k, v in s.effects.items() if v > 1)
+    check_flown(flights, f"sim.effects ({strong})" if strong else "sim.effects or sim.flight.gains")
     topics = plain(cfg.preprocess.topics)
     rec_cfg = RecorderConfig.from_mapping(plain(s.recorder))
     out = Path(s.out_dir)

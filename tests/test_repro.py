@@ -1,6 +1,7 @@
 """``make repro``'s runner: the DAG's independent stages side by side, DVC's record the same."""
 
 import json
+import re
 import os
 import signal
 import subprocess
@@ -185,6 +186,49 @@ def test_an_interrupted_run_leaves_dvc_lock_whole_and_the_next_one_goes_on(tmp_p
     assert again.returncode == 0, again.stdout + again.stderr
     status = subprocess.run([sys.executable, "-m", "dvc", "status"], cwd=root, env=env, capture_output=True, text=True)
     assert "up to date" in status.stdout, status.stdout
+
+
+@pytest.mark.parametrize("after", [1.0, 2.5, 4.5])
+def test_a_runner_killed_outright_leaves_a_run_the_next_one_finishes(tmp_path, env, after):
+    """SIGKILL reaches the runner alone: its stage calls (sessions of their own) run on. The next
+    runner stops them, then runs what is left; dvc.lock ends whole and up to date."""
+    import yaml
+
+    root = tmp_path / "toy"
+    _toy_repo(root, env)
+    runner = subprocess.Popen([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
+                              cwd=root, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(after)  # DVC starting, a running, or b and c running
+    runner.kill()
+    runner.communicate(timeout=60)
+    live = root / ".dvc/tmp/repro/live.json"
+    left = sorted(json.loads(live.read_text())["calls"]) if live.exists() else []
+    again = _repro(root, env)
+    assert again.returncode == 0 and "Traceback" not in again.stderr, again.stdout + again.stderr
+    if left:  # calls were running when it was killed: stopped by the next run, by name
+        assert f"its stages still running were stopped: {', '.join(left)}" in again.stderr, again.stderr
+    assert isinstance(yaml.safe_load((root / "dvc.lock").read_text())["stages"], dict)
+    status = subprocess.run([sys.executable, "-m", "dvc", "status"], cwd=root, env=env, capture_output=True, text=True)
+    assert "up to date" in status.stdout, status.stdout
+    assert not (root / ".dvc/tmp/repro/live.json").exists()
+
+
+def test_a_second_runner_beside_a_running_one_is_refused_in_one_line(tmp_path, env):
+    root = tmp_path / "toy"
+    _toy_repo(root, env)
+    first = subprocess.Popen([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
+                             cwd=root, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 30
+        while not (root / ".dvc/tmp/repro/live.json").exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        second = _repro(root, env)
+        assert second.returncode == 2 and "Traceback" not in second.stderr
+        assert re.fullmatch(rf"error: another `make repro` \(process {first.pid}\) is running in this repository: "
+                            r"wait for it to end, or stop it \(Ctrl-C, or kill -INT it\)\n", second.stderr), second.stderr
+    finally:
+        first.communicate(timeout=120)
+    assert first.returncode == 0
 
 
 def test_a_lock_file_cut_short_is_put_back_from_its_last_whole_copy(tmp_path):

@@ -29,6 +29,11 @@ DVC's ``.dvc/tmp/rwlock`` cut short is removed.
 The next ``make repro`` goes on from there (the stages that were stopped run again, or come
 from DVC's run cache).
 
+A runner killed outright (SIGKILL, the machine's out-of-memory killer) stops nothing: its calls
+run on. The next runner finds them in ``.dvc/tmp/repro/live.json``, stops them as above, puts
+``dvc.lock`` back where it was cut short, and goes on. While a runner is alive, a second one in
+the same repository is refused (the two would run the same stages into the same outputs).
+
 When every stage succeeds it writes the record of :mod:`nanosysid.report.runtimes` (each stage's
 seconds, from its call's start to its end, the stages skipped or restored from the run cache,
 and the total), with ``jobs``.
@@ -69,11 +74,14 @@ from tqdm import tqdm  # noqa: E402
 from nanosysid.report.runtimes import SKIPPED, write_record  # noqa: E402
 
 __all__ = ["StageRun", "stage_graph", "critical_order", "best_order", "makespan", "run_graph", "keep_whole",
-           "repair_lock", "repair_rwlock", "main"]
+           "repair_lock", "repair_rwlock", "stop_orphans", "RunnerBusy", "main"]
 
 LOG_DIR = Path(".dvc/tmp/repro")
 LOCK = Path("dvc.lock")
 GOOD_LOCK = LOG_DIR / "dvc.lock.whole"  # the last dvc.lock seen whole
+# the running runner's process id and the process group of each stage call it has running: what
+# the next runner stops where this one was killed outright (SIGKILL, a closed terminal's SIGHUP)
+LIVE = LOG_DIR / "live.json"
 STOP_GRACE_S = 60.0  # how long an interrupted stage's call has to stop before it is killed
 
 
@@ -226,12 +234,18 @@ class _DvcStages:
     reaches only the runner, which passes it on once: :meth:`stop`), keeping a copy of
     ``dvc.lock`` each time a call ends with it whole."""
 
-    def __init__(self, env: Mapping[str, str], log_dir: Path, lock: Path = LOCK, good: Path = GOOD_LOCK) -> None:
-        self.env, self.log_dir, self.lock, self.good = dict(env), log_dir, lock, good
-        self._live: set[subprocess.Popen] = set()
+    def __init__(self, env: Mapping[str, str], log_dir: Path, lock: Path = LOCK, good: Path = GOOD_LOCK,
+                 live: Path = LIVE) -> None:
+        self.env, self.log_dir, self.lock, self.good, self.live = dict(env), log_dir, lock, good, live
+        self._live: dict[subprocess.Popen, str] = {}
         self._guard = threading.Lock()
         self.stopping = False
         keep_whole(lock, good)
+        self._record()
+
+    def _record(self) -> None:
+        """Write :data:`LIVE` (under the guard): this runner and its calls' process groups."""
+        _write_json(self.live, {"runner": os.getpid(), "calls": {s: p.pid for p, s in self._live.items()}})
 
     def __call__(self, stage: str) -> StageRun:
         log = self.log_dir / (stage.replace("/", "_") + ".log")
@@ -243,10 +257,12 @@ class _DvcStages:
                 proc = subprocess.Popen([sys.executable, "-m", "dvc", "--wait-for-lock", "repro", "--single-item",
                                          stage], stdout=out, stderr=subprocess.STDOUT, env=self.env,
                                         start_new_session=True)
-                self._live.add(proc)
+                self._live[proc] = stage
+                self._record()
             rc = proc.wait()
             with self._guard:
-                self._live.discard(proc)
+                self._live.pop(proc, None)
+                self._record()
         keep_whole(self.lock, self.good)
         seconds = round(time.monotonic() - t0, 1)
         return StageRun(rc, seconds, skipped=bool(SKIPPED.search(log.read_text(errors="replace"))))
@@ -257,25 +273,101 @@ class _DvcStages:
         with self._guard:
             self.stopping = True
             live = list(self._live)
-        for proc in live:
-            _signal_group(proc, signal.SIGINT)
-        deadline = time.monotonic() + grace
-        for proc in live:
-            try:
-                proc.wait(timeout=max(0.0, deadline - time.monotonic()))
-            except (subprocess.TimeoutExpired, KeyboardInterrupt):  # too slow, or a second Ctrl-C
-                for p in live:
-                    _signal_group(p, signal.SIGKILL)
-                for p in live:
-                    p.wait()
-                return
+        _stop_groups([p.pid for p in live], grace, wait=lambda pid, timeout: next(
+            p for p in live if p.pid == pid).wait(timeout=timeout))
+
+    def close(self) -> None:
+        """The run has ended with no call running: nothing for a later runner to stop."""
+        self.live.unlink(missing_ok=True)
 
 
-def _signal_group(proc: subprocess.Popen, sig: int) -> None:
+def _stop_groups(groups: list[int], grace: float, wait: Callable[[int, float], object]) -> None:
+    """SIGINT to each process group (DVC stops its stage and records nothing of it), then SIGKILL
+    to those whose leader has not ended after ``grace`` seconds; ``wait(pid, timeout)`` waits for
+    a group's leader (raising ``subprocess.TimeoutExpired``)."""
+    for pgid in groups:
+        _signal_group(pgid, signal.SIGINT)
+    deadline = time.monotonic() + grace
+    for pgid in groups:
+        try:
+            wait(pgid, max(0.0, deadline - time.monotonic()))
+        except (subprocess.TimeoutExpired, KeyboardInterrupt):  # too slow, or a second Ctrl-C
+            for g in groups:
+                _signal_group(g, signal.SIGKILL)
+            for g in groups:
+                try:
+                    wait(g, 10.0)
+                except subprocess.TimeoutExpired:
+                    pass
+            return
+
+
+def _signal_group(pgid: int, sig: int) -> None:
     try:
-        os.killpg(proc.pid, sig)
+        os.killpg(pgid, sig)
     except ProcessLookupError:  # it has ended
         pass
+
+
+def _write_json(path: Path, data: object) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, sort_keys=True))
+    tmp.replace(path)
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # a group of another user's: alive, not ours to signal
+        return True
+    return True
+
+
+def _wait_group(pgid: int, timeout: float) -> None:
+    """Wait until no process of the group ``pgid`` is left (they are not this process's children)."""
+    deadline = time.monotonic() + timeout
+    while _group_alive(pgid):
+        if time.monotonic() >= deadline:
+            raise subprocess.TimeoutExpired(f"process group {pgid}", timeout)
+        time.sleep(0.1)
+
+
+def _is_runner(pid: int) -> bool:
+    """Whether ``pid`` is a running ``nanosysid.repro`` (a reused process id is not)."""
+    import psutil
+
+    try:
+        return pid != os.getpid() and "nanosysid.repro" in " ".join(psutil.Process(pid).cmdline())
+    except (psutil.Error, OSError):
+        return False
+
+
+class RunnerBusy(RuntimeError):
+    """Another runner is running in this repository."""
+
+
+def stop_orphans(live: Path = LIVE, grace: float = STOP_GRACE_S) -> list[str]:
+    """Stop the stage calls a runner killed outright left running (they would go on writing
+    outputs and ``dvc.lock`` beside this run, and hold the paths this run's calls need); the
+    stages stopped, by name. Raises :class:`RunnerBusy` while that runner is alive."""
+    try:
+        record = json.loads(live.read_text())
+        runner, calls = int(record["runner"]), {str(k): int(v) for k, v in record["calls"].items()}
+    except FileNotFoundError:
+        return []
+    except (ValueError, KeyError, TypeError, AttributeError):  # cut short by the kill: nothing to go on
+        live.unlink(missing_ok=True)
+        return []
+    if _is_runner(runner):
+        raise RunnerBusy(f"another `make repro` (process {runner}) is running in this repository: wait for it to "
+                         "end, or stop it (Ctrl-C, or kill -INT it)")
+    left = {s: g for s, g in calls.items() if _group_alive(g)}
+    _stop_groups(list(left.values()), grace, wait=_wait_group)
+    live.unlink(missing_ok=True)
+    return sorted(left)
 
 
 def _whole(text: str) -> bool:
@@ -379,15 +471,30 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--jobs must be at least 1, got {a.jobs}")
     from dvc.exceptions import DvcException
 
+    # a killed run's calls stopped first: they may be writing dvc.lock, which the graph reads
+    orphans, put_back, cleared = [], False, False
+    if LOG_DIR.parent.is_dir():  # a DVC repository (else the graph says so below)
+        try:
+            orphans = stop_orphans()
+        except RunnerBusy as e:
+            print(f"error: {e}", file=sys.stderr)
+            return 2
+        put_back, cleared = repair_lock(), repair_rwlock()
+    if orphans or put_back or cleared:
+        print("the last run was killed outright" + (f"; its stages still running were stopped: {', '.join(orphans)}"
+                                                   if orphans else "")
+              + ("; dvc.lock, cut short, was put back as it was after the last stage that ended" if put_back else "")
+              + ("; DVC's .dvc/tmp/rwlock, cut short, was removed" if cleared else "")
+              + "; going on from there", file=sys.stderr)
     try:
         upstream = stage_graph()
     except DvcException as e:  # no repository, a malformed dvc.yaml: DVC's own message, no traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
     upstream = _with_rig(upstream)
+    LOG_DIR.mkdir(parents=True, exist_ok=True)
     # this machine's last run where there is one, else the times the repository records
     order = best_order(upstream, _last_times(a.out) or _last_times(RECORDED), jobs=a.jobs)
-    LOG_DIR.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ)
     if a.jobs > 1:
         env["OMP_WAIT_POLICY"] = "PASSIVE"
@@ -400,12 +507,14 @@ def main(argv: list[str] | None = None) -> int:
         done, failed = run_graph(upstream, stages, jobs=a.jobs, order=order, stop=stages.stop)
     except KeyboardInterrupt:
         stages.stop()
+        stages.close()
         put_back, cleared = repair_lock(), repair_rwlock()
         print("\ninterrupted: the stages that were running stopped unrecorded"
               + ("; dvc.lock, cut short, was put back as it was after the last stage that ended" if put_back else "")
               + ("; DVC's .dvc/tmp/rwlock, cut short, was removed" if cleared else "")
               + "; `make repro` again goes on from there", file=sys.stderr)
         return 130
+    stages.close()
     total = round(time.monotonic() - t0, 1)
     if failed is not None:
         log = LOG_DIR / (failed.replace("/", "_") + ".log")

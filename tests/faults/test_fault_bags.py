@@ -124,6 +124,27 @@ def test_a_rotor_at_zero_in_flight_is_refused(bag, tmp_path, index, start, stop)
         process(dst)
 
 
+def motor_scaled(index, factor):
+    def scale(m):
+        erpm = m.erpm.copy()
+        erpm[index] = erpm[index] * factor
+        return dataclasses.replace(m, erpm=erpm)
+    return during(MOTORS, 0.0, 1e9, scale)
+
+
+@pytest.mark.parametrize("index,factor", [(2, 0.5), (0, 1.3)], ids=["m3 at half its speed", "m1 at 1.3 times"])
+def test_a_rotor_read_at_another_scale_all_flight_is_refused(bag, tmp_path, index, factor):
+    """One rotor's telemetry at another scale throughout (another unit, a gain): the four rotors
+    of a flying quadrotor turn within a few per cent of each other, so the ratio of its median
+    to the four's is the factor, to the few per cent the unscaled rotors differ by."""
+    dst = rewrite(bag, tmp_path / bag.name, motor_scaled(index, factor))
+    with pytest.raises(DataError, match=rf"motor m{index + 1} reads (\d\.\d\d) times the four rotors' median speed "
+                                        r"over the flight \(\d+ against \d+ rad/s\)") as e:
+        process(dst)
+    reported = float(re.search(r"reads (\d\.\d\d) times", str(e.value)).group(1))
+    assert reported == pytest.approx(factor, rel=0.03)
+
+
 def test_a_rotor_reading_zero_once_is_a_glitch_not_a_stop(bag, tmp_path):
     dst = rewrite(bag, tmp_path / bag.name, motor_zero(1, 3.0, 3.015))
     process(dst)

@@ -121,3 +121,50 @@ def test_an_accelerator_this_machine_lacks_is_one_error_naming_the_setting(accel
         train_model({"name": "mlp", "options": {"hidden": [8]}}, flights, tmp_path / "m.pt", horizon=5, stride=5,
                     epochs=1, patience=1, batch_size=16, val_runs=[2], seed=0, progress=False, accelerator=accelerator)
     assert not (tmp_path / "m.pt").exists()
+
+
+# ---- a world the controller cannot fly ---------------------------------------------------------
+
+def free_fall(height: float, seconds: float):
+    """A vehicle with its rotors off, let go at ``height`` m: z = height - g t^2 / 2."""
+    import numpy as np
+
+    from nanosysid.dataio import Flight
+
+    t = np.round(np.arange(0.0, seconds, 0.01), 10)
+    y = np.zeros((len(t), 13))
+    y[:, 2] = height - 0.5 * 9.81 * t**2
+    y[:, 5] = -9.81 * t
+    y[:, 9] = 1.0
+    return Flight("melon_20250601_run1", t, np.zeros((len(t), 4)), y, {})
+
+
+def test_a_simulated_flight_below_the_floor_is_refused_at_the_instant_it_lands():
+    """Let go at 1.5 m, the vehicle reaches the floor after sqrt(2 h / g) = 0.553 s: the first
+    sample below it is t = 0.56 s."""
+    from nanosysid.sim.envelope import check_flown
+
+    with pytest.raises(ConfigError, match=r"melon_20250601_run1: at t = 0\.56 s of the simulated flight it is below "
+                                          r"the floor \(z = -0\.04 m\): the controller lost the vehicle; "
+                                          r"sim\.effects \(turbulence 50\) are beyond what it flies"):
+        check_flown([free_fall(1.5, 1.0)], "sim.effects (turbulence 50)")
+    check_flown([free_fall(1.5, 0.55)], "sim.effects")  # still above it
+
+
+def test_a_world_that_overpowers_the_controller_is_refused_not_recorded():
+    """Turbulence at 50 times its realistic size (a force of 250 mN std against the 441 mN
+    weight of a 45 g vehicle) throws the vehicle down within seconds; at its realistic size it flies."""
+    from nanosysid import sim
+    from nanosysid.sim import SimConfig
+    from nanosysid.sim.envelope import check_flown
+
+    cfg = SimConfig.from_mapping({"preroll": 0.5, "compile": False, "trajectories": {
+        "melon": {"duration": 4.0, "circle_time": 3.0, "return_time": 0.5, "ramp_time": 0.15}}})
+    for strength, refused in ((50.0, True), (1.0, False)):
+        flights = sim.simulate_flights({"melon": 1}, {"turbulence": strength}, 0, cfg=cfg, progress=False)
+        if refused:
+            with pytest.raises(ConfigError, match=r"melon_\d+_run1: at t = \d+\.\d\d s of the simulated flight it "
+                                                  r"(is below the floor|has left the room)"):
+                check_flown(flights, "sim.effects (turbulence 50)")
+        else:
+            check_flown(flights, "sim.effects")

@@ -605,6 +605,10 @@ def _check_coverage(name: str, t: np.ndarray, masks: Mapping[str, np.ndarray], m
 # a rotor reading below this share of the flight's median rotor speed, on this many measured
 # samples in a row, is stopped: a quadrotor cannot fly with a rotor stopped that long
 STOPPED_SHARE, STOPPED_SAMPLES = 0.1, 3
+# a rotor whose median speed over the flight is off the four rotors' median by more than this
+# factor: a thrust 32 % off its neighbours' (speed squared) leaves a roll or pitch torque no
+# attitude loop holds for a flight; the rig's and the world's rotors stay within 2.5 %
+ROTOR_BALANCE = 1.15
 
 
 def _check_rotors(name: str, t: np.ndarray, out: pd.DataFrame, masks: Mapping[str, np.ndarray]) -> None:
@@ -619,6 +623,15 @@ def _check_rotors(name: str, t: np.ndarray, out: pd.DataFrame, masks: Mapping[st
                                 f"{t[b - 1]:.2f} s while the others turn at about {typical:.0f} rad/s: a rotor cannot "
                                 "stop in flight; the telemetry of that motor is wrong (or the flight segment "
                                 "includes the ground)")
+    medians = np.median(speeds, axis=0)
+    ratio = medians / np.median(medians)
+    off = np.flatnonzero((ratio > ROTOR_BALANCE) | (ratio < 1 / ROTOR_BALANCE))
+    if off.size:
+        raise DataError(f"{name}: " + "; ".join(
+            f"motor m{i + 1} reads {ratio[i]:.2f} times the four rotors' median speed over the flight "
+            f"({medians[i]:.0f} against {np.median(medians):.0f} rad/s)" for i in off)
+            + f": a flying quadrotor's rotors turn within a factor {ROTOR_BALANCE:g} of each other; the "
+            "telemetry of that motor is scaled wrong (another unit or gain) or is another motor's")
 
 
 # the two frames are told apart where they differ by more than FRAME_APART (m/s RMS); the other

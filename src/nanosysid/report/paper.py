@@ -92,7 +92,7 @@ def _best(simerr: Mapping[str, float]) -> tuple[str, float]:
 
 
 def compare_results(scores: Mapping[str, Scores], *, factor: float = 1.5, ratio_tolerance: float = 0.25,
-                    margin: float = 0.10, ratio_models: Sequence[str] = ("phys_res",)) -> Comparison:
+                    margin: float = 0.10, ratio_models: Sequence[str] = ("residual", "phys_res", "lstm")) -> Comparison:
     """Our results against the paper's.
 
     Args:
