@@ -12,7 +12,7 @@ import shutil
 import numpy as np
 import pytest
 
-from bagtools import IMU, MOCAP, MOTORS, TOPICS, record, rewrite, stamp_of
+from bagtools import IMU, MOCAP, MOTORS, TOPICS, record, rewrite, shift_stamp, stamp_of
 from nanosysid.bags.extract import extract_bag
 from nanosysid.preprocess.filtering import FilterConfig, filter_flight
 from nanosysid.preprocess.sync import SyncConfig, sync_flight
@@ -148,6 +148,19 @@ def test_a_rotor_read_at_another_scale_all_flight_is_refused(bag, tmp_path, inde
 def test_a_rotor_reading_zero_once_is_a_glitch_not_a_stop(bag, tmp_path):
     dst = rewrite(bag, tmp_path / bag.name, motor_zero(1, 3.0, 3.015))
     process(dst)
+
+
+# ---- clocks that step ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("step", [0.003, -0.002, 0.0045], ids=["+3 ms", "-2 ms", "+4.5 ms"])
+def test_an_imu_clock_that_steps_by_part_of_a_sample_is_refused(bag, tmp_path, step):
+    """The IMU's and the odometry's stamps share the onboard clock's ticks; from 4 s on the IMU's
+    are moved by ``step``: its gyro would sit ``step`` off every other signal without a word."""
+    dst = rewrite(bag, tmp_path / bag.name, during(IMU, 4.0, 1e9, lambda m: shift_stamp(m, step)))
+    with pytest.raises(DataError, match=r"from (\d+\.\d\d) s the IMU's stamps are " + re.escape(f"{step * 1e3:+.1f}")
+                                        + r" ms off the odometry's, whose clock ticks they share elsewhere in the flight") as e:
+        process(dst)
+    assert float(re.search(r"from (\d+\.\d\d) s", str(e.value)).group(1)) == pytest.approx(4.0, abs=0.6)
 
 
 # ---- settings that are not the recording's --------------------------------------------------

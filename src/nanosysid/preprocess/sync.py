@@ -551,6 +551,7 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
         out[f"miss_{k}"] = m
 
     _check_coverage(name, t - t[0], masks, cfg.max_loss)
+    _check_shared_ticks(name, imu["t_src"].to_numpy(), odom["t_src"].to_numpy(), t[0])
     _check_rotors(name, t - t[0], out, masks)
     _check_velocity_frame(name, t - t[0], out)
 
@@ -600,6 +601,35 @@ def _check_coverage(name: str, t: np.ndarray, masks: Mapping[str, np.ndarray], m
             raise DataError(f"{name}: stream {stream} misses {miss.mean():.0%} of the flight's samples (its longest "
                             f"gap {t[a]:.2f}..{t[b - 1]:.2f} s), more than preprocess.sync.max_loss = {max_loss:g}; "
                             "the recording lost that stream (check the topic and the link)")
+
+
+# the onboard streams are stamped on the ticks of one clock where, over some STEP_S seconds, at
+# least SHARED_TICKS of the IMU's stamps equal an odometry stamp (to TICK_MATCH_S); a step of the
+# IMU's clock against the odometry's is then STEP_S seconds in which at most LEFT_TICKS do
+SHARED_TICKS, LEFT_TICKS, TICK_MATCH_S, STEP_S = 0.9, 0.1, 1e-4, 0.5
+
+
+def _check_shared_ticks(name: str, t_imu: np.ndarray, t_odom: np.ndarray, t0: float) -> None:
+    """Refuse IMU stamps that leave the ticks they shared with the odometry's: the IMU's clock
+    stepped (the gyro would be moved against every other signal from there, by less than a
+    sample, without a word). Streams on clocks of their own (no shared ticks) are not judged."""
+    if len(t_imu) < 2 or len(t_odom) < 2:
+        return
+    i = np.clip(np.searchsorted(t_odom, t_imu), 1, len(t_odom) - 1)
+    off = np.where(np.abs(t_odom[i] - t_imu) < np.abs(t_odom[i - 1] - t_imu), t_odom[i], t_odom[i - 1]) - t_imu
+    on = np.abs(off) < TICK_MATCH_S
+    period = float(np.median(np.diff(t_imu)))
+    # a lost odometry message leaves one IMU stamp without its tick; a stepped clock, every one
+    window = min(len(on), max(1, int(round(STEP_S / period))))
+    share = np.convolve(on.astype(float), np.ones(window) / window, mode="valid")
+    if share.max() < SHARED_TICKS or share.min() > LEFT_TICKS:
+        return
+    a = int(np.argmin(share))
+    step = float(np.median(off[a:a + window]))
+    raise DataError(f"{name}: from {t_imu[a] - t0:.2f} s the IMU's stamps are {-step * 1e3:+.1f} ms off the "
+                    "odometry's, whose clock ticks they share elsewhere in the flight: the IMU's clock stepped, "
+                    "and its signals would be moved against the others from there; the recording's IMU "
+                    "timestamps are damaged")
 
 
 # a rotor reading below this share of the flight's median rotor speed, on this many measured
