@@ -1,9 +1,6 @@
 """``make repro``'s runner: the DAG's independent stages side by side, DVC's record the same."""
 
 import json
-import re
-import os
-import signal
 import subprocess
 import sys
 import threading
@@ -13,6 +10,7 @@ from pathlib import Path
 import pytest
 
 from nanosysid.repro import StageRun, best_order, critical_order, makespan, run_graph
+from toyrepo import env as toy_env, repro as _repro, toy_repo as _toy_repo
 
 # a diamond under a lone stage:  a -> (b, c) -> d,  e alone
 DIAMOND = {"a": set(), "b": {"a"}, "c": {"a"}, "d": {"b", "c"}, "e": set()}
@@ -95,41 +93,9 @@ def test_a_dependency_outside_the_graph_is_refused():
         run_graph({"a": {"z"}}, lambda s: StageRun(0, 0.0), progress=False, say=lambda s: None)
 
 
-# each stage writes its start and end (wall clock) into its output, after sleeping
-STAGE = """import sys, time
-name, fail = sys.argv[1], sys.argv[2] == "fail"
-t0 = time.time()
-time.sleep(float(sys.argv[3]))
-if fail:
-    print("stage", name, "broke on purpose")
-    sys.exit(3)
-open(name + ".txt", "w").write(f"{t0} {time.time()}")
-"""
-
-
-def _toy_repo(root: Path, env: dict, fail: str = "") -> None:
-    root.mkdir()
-    (root / "stage.py").write_text(STAGE)
-    stages = {"a": ([], 0.0), "b": (["a.txt"], 2.0), "c": (["a.txt"], 2.0), "d": (["b.txt", "c.txt"], 0.0)}
-    lines = ["stages:"]
-    for name, (deps, sleep) in stages.items():
-        mode = "fail" if name == fail else "ok"
-        lines += [f"  {name}:", f"    cmd: {sys.executable} stage.py {name} {mode} {sleep}",
-                  "    deps: [stage.py" + "".join(f", {d}" for d in deps) + "]", f"    outs: [{name}.txt]"]
-    (root / "dvc.yaml").write_text("\n".join(lines) + "\n")
-    for cmd in (["git", "init", "-q"], [sys.executable, "-m", "dvc", "init", "-q"]):
-        subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True)
-
-
-def _repro(root, env):
-    return subprocess.run([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
-                          cwd=root, env=env, capture_output=True, text=True)
-
-
 @pytest.fixture
 def env():
-    src = str(Path(__file__).resolve().parents[1] / "src")
-    return dict(os.environ, DVC_NO_ANALYTICS="1", PYTHONPATH=src + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return toy_env()
 
 
 def test_independent_stages_of_a_dvc_pipeline_run_side_by_side_and_dvc_records_them_all(tmp_path, env):
@@ -159,76 +125,6 @@ def test_a_failing_stage_stops_the_run_with_its_log_and_runs_nothing_after_it(tm
     assert "stage c failed" in r.stderr and "stage c broke on purpose" in r.stderr, r.stderr
     assert "Traceback" not in r.stderr
     assert (root / "b.txt").exists() and not (root / "d.txt").exists() and not (root / "rec.json").exists()
-
-
-@pytest.mark.parametrize("sig, after", [(signal.SIGINT, 1.5), (signal.SIGINT, 4.0), (signal.SIGTERM, 3.0)])
-def test_an_interrupted_run_leaves_dvc_lock_whole_and_the_next_one_goes_on(tmp_path, env, sig, after):
-    import yaml
-
-    root = tmp_path / "toy"
-    _toy_repo(root, env)
-    runner = subprocess.Popen([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
-                              cwd=root, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(after)  # DVC starting, or b and c running
-    runner.send_signal(sig)
-    out, err = runner.communicate(timeout=120)
-    assert runner.returncode in (0, 130) and "Traceback" not in err, err
-    if runner.returncode == 130:
-        assert "interrupted" in err and not (root / "rec.json").exists()
-    lock = root / "dvc.lock"
-    if lock.exists():
-        assert isinstance(yaml.safe_load(lock.read_text())["stages"], dict)
-    # no stage's call outlives the runner: nothing is written after it has returned
-    written = {f: f.stat().st_mtime_ns for f in root.glob("*.txt")}
-    time.sleep(2.5)
-    assert {f: f.stat().st_mtime_ns for f in root.glob("*.txt")} == written
-    again = _repro(root, env)
-    assert again.returncode == 0, again.stdout + again.stderr
-    status = subprocess.run([sys.executable, "-m", "dvc", "status"], cwd=root, env=env, capture_output=True, text=True)
-    assert "up to date" in status.stdout, status.stdout
-
-
-@pytest.mark.parametrize("after", [1.0, 2.5, 4.5])
-def test_a_runner_killed_outright_leaves_a_run_the_next_one_finishes(tmp_path, env, after):
-    """SIGKILL reaches the runner alone: its stage calls (sessions of their own) run on. The next
-    runner stops them, then runs what is left; dvc.lock ends whole and up to date."""
-    import yaml
-
-    root = tmp_path / "toy"
-    _toy_repo(root, env)
-    runner = subprocess.Popen([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
-                              cwd=root, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    time.sleep(after)  # DVC starting, a running, or b and c running
-    runner.kill()
-    runner.communicate(timeout=60)
-    live = root / ".dvc/tmp/repro/live.json"
-    left = sorted(json.loads(live.read_text())["calls"]) if live.exists() else []
-    again = _repro(root, env)
-    assert again.returncode == 0 and "Traceback" not in again.stderr, again.stdout + again.stderr
-    if left:  # calls were running when it was killed: stopped by the next run, by name
-        assert f"its stages still running were stopped: {', '.join(left)}" in again.stderr, again.stderr
-    assert isinstance(yaml.safe_load((root / "dvc.lock").read_text())["stages"], dict)
-    status = subprocess.run([sys.executable, "-m", "dvc", "status"], cwd=root, env=env, capture_output=True, text=True)
-    assert "up to date" in status.stdout, status.stdout
-    assert not (root / ".dvc/tmp/repro/live.json").exists()
-
-
-def test_a_second_runner_beside_a_running_one_is_refused_in_one_line(tmp_path, env):
-    root = tmp_path / "toy"
-    _toy_repo(root, env)
-    first = subprocess.Popen([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
-                             cwd=root, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 30
-        while not (root / ".dvc/tmp/repro/live.json").exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
-        second = _repro(root, env)
-        assert second.returncode == 2 and "Traceback" not in second.stderr
-        assert re.fullmatch(rf"error: another `make repro` \(process {first.pid}\) is running in this repository: "
-                            r"wait for it to end, or stop it \(Ctrl-C, or kill -INT it\)\n", second.stderr), second.stderr
-    finally:
-        first.communicate(timeout=120)
-    assert first.returncode == 0
 
 
 def test_a_lock_file_cut_short_is_put_back_from_its_last_whole_copy(tmp_path):
