@@ -345,6 +345,16 @@ def _is_runner(pid: int) -> bool:
         return False
 
 
+def _is_call(pgid: int) -> bool:
+    """Whether the group ``pgid`` is still led by a runner's ``dvc repro`` call (a reused id is not)."""
+    import psutil
+
+    try:
+        return "dvc" in " ".join(psutil.Process(pgid).cmdline()) and os.getpgid(pgid) == pgid
+    except (psutil.Error, OSError):
+        return False
+
+
 class RunnerBusy(RuntimeError):
     """Another runner is running in this repository."""
 
@@ -364,7 +374,7 @@ def stop_orphans(live: Path = LIVE, grace: float = STOP_GRACE_S) -> list[str]:
     if _is_runner(runner):
         raise RunnerBusy(f"another `make repro` (process {runner}) is running in this repository: wait for it to "
                          "end, or stop it (Ctrl-C, or kill -INT it)")
-    left = {s: g for s, g in calls.items() if _group_alive(g)}
+    left = {s: g for s, g in calls.items() if _group_alive(g) and _is_call(g)}
     _stop_groups(list(left.values()), grace, wait=_wait_group)
     live.unlink(missing_ok=True)
     return sorted(left)
