@@ -619,6 +619,8 @@ def _check_shared_ticks(name: str, t_imu: np.ndarray, t_odom: np.ndarray, t0: fl
     off = np.where(np.abs(t_odom[i] - t_imu) < np.abs(t_odom[i - 1] - t_imu), t_odom[i], t_odom[i - 1]) - t_imu
     on = np.abs(off) < TICK_MATCH_S
     period = float(np.median(np.diff(t_imu)))
+    if not period > 0:  # stamps repeated more often than not: no rate to judge a step by
+        return
     # a lost odometry message leaves one IMU stamp without its tick; a stepped clock, every one
     window = min(len(on), max(1, int(round(STEP_S / period))))
     share = np.convolve(on.astype(float), np.ones(window) / window, mode="valid")
