@@ -278,7 +278,11 @@ def test_compare_sets_the_dataset_beside_the_paper(tiny):
             [simerr[m][k] / simerr["physics"][k] for k in "pvRw"], abs=5e-3)
         assert ratios[f"{m} / physics, paper"][0] == {"residual": "1.74", "phys_res": "1.02", "lstm": "2.57"}[m]
     record = json.loads((tiny / "sim" / "stats.json").read_text())
-    assert set(record["best"]) == set("pvRw") and len(record["checks"]) == 6
+    # the naive and physics rows, each learned model's ratios, the best of each column, and three
+    # of the identification (the paper's k_M by its method, k_F and k_M against nature's)
+    assert set(record["best"]) == set("pvRw") and len(record["checks"]) == 1 + len(LEARNED) + 1 + 3
+    assert [c for c in record["checks"] if "within 25% of the paper's ratio" in c] == [
+        f"{m} / physics within 25% of the paper's ratio" for m in ("residual", "phys_res", "lstm")]
     # the identification beside nature's coefficients and the paper's k_M
     ident = record["identification"]
     fit = json.loads((tiny / "physics" / "params.json").read_text())
