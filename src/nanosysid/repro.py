@@ -244,7 +244,7 @@ class _DvcStages:
         self._record()
 
     def _record(self) -> None:
-        """Write :data:`LIVE` (under the guard): this runner and its calls' process groups."""
+        """Write :data:`LIVE`: this runner and its calls' process groups (each call's pid leads its group)."""
         _write_json(self.live, {"runner": os.getpid(), "calls": {s: p.pid for p, s in self._live.items()}})
 
     def __call__(self, stage: str) -> StageRun:
@@ -273,8 +273,8 @@ class _DvcStages:
         with self._guard:
             self.stopping = True
             live = list(self._live)
-        _stop_groups([p.pid for p in live], grace, wait=lambda pid, timeout: next(
-            p for p in live if p.pid == pid).wait(timeout=timeout))
+        by_pid = {p.pid: p for p in live}
+        _stop_groups(list(by_pid), grace, wait=lambda pid, timeout: by_pid[pid].wait(timeout=timeout))
 
     def close(self) -> None:
         """The run has ended with no call running: nothing for a later runner to stop."""
@@ -335,23 +335,26 @@ def _wait_group(pgid: int, timeout: float) -> None:
         time.sleep(0.1)
 
 
-def _is_runner(pid: int) -> bool:
-    """Whether ``pid`` is a running ``nanosysid.repro`` (a reused process id is not)."""
+def _command(pid: int) -> str:
+    """The command line of the process ``pid`` ("" where there is none, or none readable)."""
     import psutil
 
     try:
-        return pid != os.getpid() and "nanosysid.repro" in " ".join(psutil.Process(pid).cmdline())
+        return " ".join(psutil.Process(pid).cmdline())
     except (psutil.Error, OSError):
-        return False
+        return ""
+
+
+def _is_runner(pid: int) -> bool:
+    """Whether ``pid`` is a running ``nanosysid.repro`` (a reused process id is not)."""
+    return pid != os.getpid() and "nanosysid.repro" in _command(pid)
 
 
 def _is_call(pgid: int) -> bool:
     """Whether the group ``pgid`` is still led by a runner's ``dvc repro`` call (a reused id is not)."""
-    import psutil
-
     try:
-        return "dvc" in " ".join(psutil.Process(pgid).cmdline()) and os.getpgid(pgid) == pgid
-    except (psutil.Error, OSError):
+        return "dvc" in _command(pgid) and os.getpgid(pgid) == pgid
+    except OSError:
         return False
 
 
