@@ -34,6 +34,9 @@ run on. The next runner finds them in ``.dvc/tmp/repro/live.json``, stops them a
 ``dvc.lock`` back where it was cut short, and goes on. While a runner is alive, a second one in
 the same repository is refused (the two would run the same stages into the same outputs).
 
+Before it starts, every cache object ``dvc.lock`` names is checked against its name
+(:mod:`nanosysid.cachecheck`): a damaged one is removed, and the stage that wrote it runs again.
+
 When every stage succeeds it writes the record of :mod:`nanosysid.report.runtimes` (each stage's
 seconds, from its call's start to its end, the stages skipped or restored from the run cache,
 and the total), with ``jobs``.
@@ -71,6 +74,7 @@ from typing import Callable, Mapping  # noqa: E402
 
 from tqdm import tqdm  # noqa: E402
 
+from nanosysid import cachecheck  # noqa: E402
 from nanosysid.report.runtimes import SKIPPED, write_record  # noqa: E402
 
 __all__ = ["StageRun", "stage_graph", "critical_order", "best_order", "makespan", "run_graph", "keep_whole",
@@ -493,6 +497,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {e}", file=sys.stderr)
             return 2
         put_back, cleared = repair_lock(), repair_rwlock()
+        bad = cachecheck.damaged()
+        for d in bad:
+            print(f"damaged DVC cache object, removed: {d}", file=sys.stderr)
+        cachecheck.remove(bad)
     if orphans or put_back or cleared:
         print("the last run was killed outright" + (f"; its stages still running were stopped: {', '.join(orphans)}"
                                                    if orphans else "")
