@@ -47,6 +47,9 @@ PINNED: dict[str, str] = {
     # OpenMP's idle threads sleep instead of spinning: a switch of speed only (no byte changes),
     # which keeps a thread that waits from taking a core a busy neighbour process needs
     "OMP_WAIT_POLICY": "PASSIVE",
+    # OpenBLAS's own threads (numpy's, scipy's) the same: they spin 2^4 cycles for work, not
+    # OpenBLAS's default 2^28 (a tenth of a second, on a core a neighbour process needs)
+    "OPENBLAS_THREAD_TIMEOUT": "4",
 }
 
 
@@ -120,7 +123,8 @@ def quiet_tracing() -> Iterator[None]:
 def pinned_environment() -> dict[str, str]:
     """The variables :func:`pin` sets on this machine (none of the x86 ones elsewhere)."""
     if platform.machine().lower() not in ("x86_64", "amd64"):
-        return {k: PINNED[k] for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "ATEN_CPU_CAPABILITY", "OMP_WAIT_POLICY")}
+        return {k: PINNED[k] for k in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "ATEN_CPU_CAPABILITY", "OMP_WAIT_POLICY",
+                                        "OPENBLAS_THREAD_TIMEOUT")}
     return dict(PINNED)
 
 
