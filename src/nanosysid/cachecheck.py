@@ -100,7 +100,13 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description="Check every DVC cache object dvc.lock names against its name.")
     p.add_argument("--remove", action="store_true", help="delete the damaged objects (their stages run again)")
     a = p.parse_args(argv)
-    bad = damaged()
+    from dvc.exceptions import DvcException
+
+    try:
+        bad = damaged()
+    except DvcException as e:  # not a DVC repository, a configuration DVC refuses: its own words
+        print(f"error: {e}", file=sys.stderr)
+        return 2
     for d in bad:
         print(d, file=sys.stderr)
     if bad and a.remove:

@@ -497,7 +497,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"error: {e}", file=sys.stderr)
             return 2
         put_back, cleared = repair_lock(), repair_rwlock()
-        bad = cachecheck.damaged()
+        try:
+            bad = cachecheck.damaged()
+        except DvcException:  # a repository DVC cannot open: the graph below says why, in DVC's words
+            bad = []
         for d in bad:
             print(f"damaged DVC cache object, removed: {d}", file=sys.stderr)
         cachecheck.remove(bad)
