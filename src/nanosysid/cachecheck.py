@@ -12,7 +12,6 @@ before it starts; ``python -m nanosysid.cachecheck`` checks without removing.
 from __future__ import annotations
 
 import argparse
-import hashlib
 import json
 import sys
 from dataclasses import dataclass
@@ -20,10 +19,9 @@ from pathlib import Path
 
 import yaml
 
+from nanosysid.guard import file_md5
+
 __all__ = ["Damaged", "damaged", "remove", "main"]
-
-CHUNK = 1 << 20
-
 
 @dataclass(frozen=True)
 class Damaged:
@@ -37,14 +35,6 @@ class Damaged:
     def __str__(self) -> str:
         return (f"{self.path}: the cache object of {self.output} (stage {self.stage}) hashes to {self.found}, "
                 f"not to its name")
-
-
-def _md5(path: Path) -> str:
-    h = hashlib.md5()
-    with path.open("rb") as f:
-        while chunk := f.read(CHUNK):
-            h.update(chunk)
-    return h.hexdigest()
 
 
 def _objects(lock: dict) -> list[tuple[str, str, str]]:
@@ -74,7 +64,7 @@ def damaged(root: Path = Path("."), cache: Path | None = None) -> list[Damaged]:
         path = cache / md5[:2] / md5[2:]
         if not path.is_file():
             return None
-        actual = _md5(path)
+        actual = file_md5(path)
         if actual != md5.removesuffix(".dir"):
             found.append(Damaged(stage, output, path, actual))
             return None

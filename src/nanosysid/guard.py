@@ -36,7 +36,7 @@ import yaml
 
 from nanosysid.errors import ConfigError
 
-__all__ = ["Claim", "claim", "stage_run", "stage_name", "declared", "record_path", "API"]
+__all__ = ["Claim", "claim", "stage_run", "stage_name", "declared", "record_path", "file_md5", "API"]
 
 API = "python"  # the writer outside any stage
 TMP = "nanosysid-"  # our temporaries: .<name>.nanosysid-<random>.tmp / .old
@@ -246,7 +246,8 @@ def record_path(path: Path) -> Path:
     return path.parent / f".{path.name}{_SUFFIX}"
 
 
-def _md5(path: Path) -> str:
+def file_md5(path: Path) -> str:
+    """The MD5 of a file's bytes (hex), read a megabyte at a time."""
     h = hashlib.md5()
     with open(path, "rb") as f:
         for chunk in iter(lambda: f.read(1 << 20), b""):
@@ -300,7 +301,7 @@ class Claim:
         if self.kind == "folder":
             rec["files"] = _files(tmp)
         else:
-            rec["md5"] = _md5(tmp)
+            rec["md5"] = file_md5(tmp)
         os.ftruncate(self.fd, 0)
         os.pwrite(self.fd, (json.dumps(rec, indent=1, sort_keys=True) + "\n").encode(), 0)
 
@@ -341,7 +342,7 @@ def _check_inputs(path: Path, inputs: Sequence[Path], what: str) -> None:
 def _restored(path: Path, run: _Run | None) -> bool:
     """Whether ``path`` holds what ``dvc.lock`` records for the running stage (DVC put it there)."""
     md5 = run.locked.get(str(_resolve(path))) if run is not None else None
-    return bool(md5) and md5 == _md5(path)
+    return bool(md5) and md5 == file_md5(path)
 
 
 def _check_others(path: Path, others: dict[Path, str]) -> None:
@@ -362,7 +363,7 @@ def _ours(path: Path, kind: str, stage: str, rec: dict | None, run: _Run | None)
         if rec.get("stage") != stage:
             raise ConfigError(f"{path}: written by stage {rec.get('stage')}, not by {stage}; refusing to replace "
                               "another stage's output (choose another path)")
-        if kind == "file" and rec.get("md5") not in (None, _md5(path)) and not _restored(path, run):
+        if kind == "file" and rec.get("md5") not in (None, file_md5(path)) and not _restored(path, run):
             raise ConfigError(f"{path}: changed since stage {stage} wrote it; refusing to overwrite it "
                               "(move it away to keep it, or delete it)")
         if kind == "folder":
