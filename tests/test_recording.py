@@ -433,7 +433,6 @@ def test_the_setpoints_as_instruments_find_a_lag_the_loops_answers_pull_early():
     assert lag.interval[0] <= 0.040 <= lag.interval[1] and lag.interval[1] - lag.interval[0] < 0.010
 
 
-
 def test_a_rotors_wrench_lagging_its_speed_is_in_the_bags_readings_as_in_the_simulators_output(tmp_path):
     # a world whose rotors' wrench follows their speed through a slow lag: the rotors turn at other
     # speeds than those the simulated wrench's squares give, and the bag (what the data chain

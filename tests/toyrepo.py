@@ -36,6 +36,11 @@ def toy_repo(root: Path, env: dict, fail: str = "") -> None:
         lines += [f"  {name}:", f"    cmd: {sys.executable} stage.py {name} {mode} {sleep}",
                   "    deps: [stage.py" + "".join(f", {d}" for d in deps) + "]", f"    outs: [{name}.txt]"]
     (root / "dvc.yaml").write_text("\n".join(lines) + "\n")
+    init(root, env)
+
+
+def init(root: Path, env: dict) -> None:
+    """A new git and DVC repository at ``root`` (the folder exists)."""
     for cmd in (["git", "init", "-q"], [sys.executable, "-m", "dvc", "init", "-q"]):
         subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True)
 

@@ -12,7 +12,7 @@ import sys
 
 import pytest
 
-from toyrepo import env as toy_env, repro, up_to_date
+from toyrepo import env as toy_env, init, repro, up_to_date
 
 CLASS = "silent acceptance"
 
@@ -35,8 +35,7 @@ def test_a_damaged_cache_object_checked_out_is_named_and_its_stage_runs_again(tm
     (root / "stage.py").write_text(STAGE)
     (root / "dvc.yaml").write_text(f"stages:\n  split:\n    cmd: {sys.executable} stage.py\n"
                                    "    deps: [stage.py]\n    outs: [split]\n")
-    for cmd in (["git", "init", "-q"], [sys.executable, "-m", "dvc", "init", "-q"]):
-        subprocess.run(cmd, cwd=root, env=env, check=True, capture_output=True)
+    init(root, env)
     assert repro(root, env).returncode == 0
     good = (root / "split" / "test.csv").read_bytes()
     # the object of split/test.csv, named by the MD5 of its bytes ("t,x\n0,2\n", worked by hand below)

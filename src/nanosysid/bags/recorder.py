@@ -213,11 +213,9 @@ def record_flight(
          for j in np.flatnonzero(~drop)],
     )
 
-    # motors: the reading stamped at tick j is the rotor speed motor_lag earlier; a rotor turns at
-    # what makes its (possibly lagging) wrench the simulated one, as in the simulator's own output
+    # motors: the reading stamped at tick j is the turning rotor's speed motor_lag earlier
     motor_lag = cfg.motor_delay + raw.worlds[i].telemetry_delay
-    turning = raw.worlds[i].speeds_for(omega, float(tau_all[1] - tau_all[0]))
-    om_read = interp_columns(tau_all, turning, tau_o - motor_lag) + rng.normal(scale=noise.rotor, size=(n, 4))
+    om_read = interp_columns(tau_all, raw.turning(i), tau_o - motor_lag) + rng.normal(scale=noise.rotor, size=(n, 4))
     mcfg = topics["motors"]
     counts = np.clip(np.round(om_read * ERPM_PER_RADS / mcfg["erpm_unit"]), 0, mcfg["invalid"] - 1).astype(np.uint16)
     counts[rng.random(counts.shape) < cfg.motor_missed] = mcfg["invalid"]

@@ -170,6 +170,12 @@ class RawRecord:
     durations: list[float]
     rngs: list[np.random.Generator]
 
+    def turning(self, i: int) -> np.ndarray:
+        """Flight ``i``'s rotor speeds ``(N, 4)`` (rad/s) as the rotors turn: :attr:`omega` are
+        those the simulated wrench's squares give, which a slow lag of the wrench (the world's
+        ``thrust_lag``) sets apart from the turning ones; what any record of the rotors reads."""
+        return self.worlds[i].speeds_for(self.omega[i], float(self.t[1] - self.t[0]))
+
 
 @threads(LOOP_THREADS)
 def simulate_raw(
@@ -362,9 +368,7 @@ def flights_from_record(raw: RawRecord, *, vehicle: Vehicle, cfg: SimConfig, noi
         y_true = raw.x[i, idx]
         omega_true = raw.omega[i, idx]
         # recorded rotor speeds lag the true ones: sample the true history d seconds earlier
-        # the rotors turn at what makes their (possibly lagging) wrench the simulated one
-        omega = raw.worlds[i].speeds_for(raw.omega[i], float(raw.t[1] - raw.t[0]))
-        u_rec = interp_columns(raw.t, omega, raw.t[idx] - raw.worlds[i].telemetry_delay)
+        u_rec = interp_columns(raw.t, raw.turning(i), raw.t[idx] - raw.worlds[i].telemetry_delay)
         acc_true = raw.wrench[i, idx, :3] / vehicle.mass  # specific force in the body frame
         y, u, acc = y_true.copy(), u_rec, acc_true.copy()
         if noise:
