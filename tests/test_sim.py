@@ -116,6 +116,25 @@ def test_melon_reference():
     assert np.abs(np.diff(v[1:], axis=0)).max() < 0.1  # no velocity jump after the start
 
 
+def test_melon_circling_rate_rises_as_the_rigs_reference_did():
+    # the rig's Melon: the rate rising linearly from 1.5 to 2.5 rad/s over 60 s, so the local
+    # angle is 1.5 t + t^2 / 120, and x (r cos of it) peaks where that angle is 2 pi n
+    ref = make_reference("melon", omega_start=1.5, omega_circle=2.5, omega_plane=0.2, circle_time=60.0,
+                         return_time=4.0, ramp_time=0.0)
+    t = np.arange(0, 60, 0.001)
+    x = ref.pva(t)[0][:, 0]
+    inner = (x[1:-1] > x[:-2]) & (x[1:-1] >= x[2:])
+    peaks = t[1:-1][inner]
+    n = np.arange(1, len(peaks) + 1)
+    expected = 60 * (-1.5 + np.sqrt(1.5**2 + 2 * np.pi * n / 30))
+    # 120 rad in all: 19 whole turns
+    assert len(peaks) == 19 and np.allclose(peaks, expected, atol=2e-3)
+    # the speed on the circle is the radius times the rate where the plane's turn adds nothing
+    # (x at its peak: the point on the turning axis)
+    v = ref.pva(peaks)[1]
+    assert np.allclose(np.linalg.norm(v, axis=1), 0.75 * (1.5 + peaks / 60), rtol=1e-3)
+
+
 def test_chirp_reference():
     ref = make_reference("chirp")
     t, p, v, a = sample(ref)

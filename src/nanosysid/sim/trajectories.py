@@ -121,23 +121,29 @@ def random_points(*, n_points: int = 52, duration: float = 60.0, box: tuple[floa
 
 def melon(*, radius: float = 0.75, omega_circle: float = 2.5, omega_plane: float = 0.4,
           center: tuple[float, float, float] = (0.0, 0.0, 1.5), duration: float = 65.0,
-          circle_time: float = 55.0, ramp_time: float = 1.0, return_time: float = 4.0) -> Reference:
-    """Circles of ``radius`` m in a local x-z plane at ``omega_circle`` rad/s, the plane turning
-    about the world x axis at ``omega_plane`` rad/s, for ``circle_time`` s (the circling rate
-    ramps up linearly over the first ``ramp_time`` s); then a minimum-jerk return to the
-    centre over ``return_time`` s, and hover there until ``duration``.
+          circle_time: float = 55.0, ramp_time: float = 1.0, return_time: float = 4.0,
+          omega_start: float | None = None) -> Reference:
+    """Circles of ``radius`` m in a local x-z plane, the plane turning about the world x axis at
+    ``omega_plane`` rad/s, for ``circle_time`` s; then a minimum-jerk return to the centre over
+    ``return_time`` s, and hover there until ``duration``. The circling rate rises linearly from
+    ``omega_start`` rad/s at the start to ``omega_circle`` at ``circle_time`` (None: constant at
+    ``omega_circle``), and the whole of it is ramped in linearly over the first ``ramp_time`` s.
     """
     c = np.asarray(center)
     if circle_time + return_time > duration:
         raise ValueError(f"melon: circle_time + return_time = {circle_time + return_time} s exceeds duration {duration} s")
+    if omega_start is not None and circle_time <= 0:
+        raise ValueError(f"melon: a circling rate rising from omega_start needs circle_time > 0, got {circle_time}")
     r, wc, wp, Tr = radius, omega_circle, omega_plane, ramp_time
+    w0 = wc if omega_start is None else omega_start
+    k = 0.0 if omega_start is None else (wc - w0) / circle_time  # rad/s², the circling rate's rise
 
     def circle(t):
-        # circle phase th(t): rate rising linearly to wc over Tr, then constant
-        ramp = t < Tr
-        th = np.where(ramp, 0.5 * wc * t**2 / max(Tr, 1e-9), wc * (t - 0.5 * Tr))
-        dth = np.where(ramp, wc * t / max(Tr, 1e-9), wc)
-        ddth = np.where(ramp, wc / max(Tr, 1e-9), 0.0)
+        # circle phase th(t): the rate w0 + k t, times t / Tr over the first Tr s
+        ramp, span = t < Tr, max(Tr, 1e-9)
+        th = np.where(ramp, (0.5 * w0 * t**2 + k * t**3 / 3) / span, w0 * (t - 0.5 * Tr) + k * (0.5 * t**2 - Tr**2 / 6))
+        dth = np.where(ramp, (w0 * t + k * t**2) / span, w0 + k * t)
+        ddth = np.where(ramp, (w0 + 2 * k * t) / span, k)
         ct, st = np.cos(th), np.sin(th)
         cp, sp = np.cos(wp * t), np.sin(wp * t)
         # local point (r cos th, 0, r sin th) rotated about x by wp t
