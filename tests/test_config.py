@@ -268,6 +268,8 @@ def test_a_model_that_is_no_network_enters_through_its_config(tmp_path, monkeypa
     ("preprocess.sync.rate=0", r"preprocess\.sync\.rate must be a positive number, got 0"),
     ("preprocess.sync.max_lag=-1", r"preprocess\.sync\.max_lag must be a positive number, got -1"),
     ("sim.flight.feedforward=1.5", r"sim\.flight\.feedforward must be a number from 0 to 1, got 1\.5"),
+    ("sim.flight.trajectories.melon.omega_start=-1",
+     r"sim\.flight\.trajectories\.melon\.omega_start must be a number >= 0, or null, got -1"),
     ("discover.sindy=maybe", r"discover\.sindy must be true or false, got 'maybe'"),
     ("report.markdown=5", r"report\.markdown must be text, got 5"),
     ("launcher.kind=pbs", r"launcher\.kind must be one of local, slurm, got 'pbs'"),

@@ -64,7 +64,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("sim.flight.compile", FLAG),
     ("sim.flight.gains.*", NUMBER),
     ("sim.flight.trajectories.*.center", NUMBER), ("sim.flight.trajectories.*.n_points", COUNT),
-    ("sim.flight.trajectories.*", POSITIVE),
+    ("sim.flight.trajectories.melon.omega_start", NONNEG_OR_NULL), ("sim.flight.trajectories.*", POSITIVE),
     ("sim.recorder.*_rate", POSITIVE), ("sim.recorder.host_epoch", NUMBER), ("sim.recorder.mocap_clock", NUMBER),
     ("sim.recorder.stm_clock", NUMBER), ("sim.recorder.stm_drift_ppm", NUMBER), ("sim.recorder.wifi_loss", SHARE),
     ("sim.recorder.motor_missed", SHARE), ("sim.recorder.*", NONNEG),
