@@ -12,6 +12,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from nanosysid.errors import ToolchainError
+from nanosysid.export.mcu import require_toolchain
 from test_pipeline import TINY_SIM
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -55,8 +57,19 @@ TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=10.0", "campaign.famili
 # the export and MCU stages of one model: the others' are the same two DVC stages over another
 # model's files (tests/test_pipeline.py runs them for a physics, a learned and a discovered model)
 ONE_EXPORT = [f"~export.models.{m}" for m in ("residual", "phys_res", "lstm", "discovered")]
-# without the ARM toolchain the MCU stage still runs, switched off, as the README tells such a user
-NO_TOOLCHAIN = [] if shutil.which("arm-none-eabi-gcc") and shutil.which("qemu-system-arm") else ["export.mcu.enabled=false"]
+
+
+def _no_toolchain() -> list[str]:
+    """The MCU stage switched off where the product's own check finds the ARM toolchain missing
+    (compiler, emulator or newlib), as the README tells such a user."""
+    try:
+        require_toolchain()
+    except ToolchainError:
+        return ["export.mcu.enabled=false"]
+    return []
+
+
+NO_TOOLCHAIN = _no_toolchain()
 SMALL = [a for o in TINY_SIM + TINY_CAMPAIGN + ONE_EXPORT + NO_TOOLCHAIN for a in ("-S", o)]
 
 

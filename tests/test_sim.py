@@ -12,7 +12,7 @@ from nanosysid import predictors, protocol, sim, so3
 from nanosysid.dataio import write_flight_csv
 from nanosysid.errors import PredictionError
 from nanosysid.sim import world as fx
-from nanosysid.sim.simulator import SimConfig, simulate
+from nanosysid.sim.simulator import NoiseConfig, SimConfig, simulate
 from nanosysid.sim.trajectories import Reference, make_reference
 from nanosysid.vehicle import Vehicle
 
@@ -362,12 +362,17 @@ def test_every_effect_is_visible_to_the_nominal_model(melons):
 
 
 def test_flight_layout_truth_and_noise():
-    f = sim.simulate_flight("square", 2, cfg=SHORT, seed=1)
+    # the gyro read with its own std per body axis (roll, pitch, yaw); 0 reads the true rate
+    cfg = dataclasses.replace(SHORT, noise=NoiseConfig.from_mapping({"gyro": [0.05, 0.2, 0.0]}))
+    f = sim.simulate_flight("square", 2, cfg=cfg, seed=1)
     assert len(f) == 1901 and np.isclose(f.t[-1] - f.t[0], 19.0)
     assert f.name == "square_20250601_run2" and f.trajectory == "square"
     truth = np.column_stack([f.extra[f"true_{c}"] for c in ("x", "y", "z")])
     err = f.y[:, :3] - truth
     assert 1e-4 < err.std() < 2e-3  # measurement noise of about 0.5 mm
+    gyro = f.y[:, 10:13] - np.column_stack([f.extra[f"true_{c}"] for c in ("wx", "wy", "wz")])
+    assert np.allclose(gyro[:, :2].std(axis=0), [0.05, 0.2], rtol=0.1)  # 1901 samples: about 2 % spread
+    assert np.abs(gyro[:, 2]).max() < 1e-9
     assert np.allclose(np.linalg.norm(f.y[:, 6:10], axis=1), 1)
     # the accelerometer measures the specific force: about g along body z in hover
     assert abs(np.median(f.extra["true_az_body"]) - V.gravity) < 0.5

@@ -29,8 +29,8 @@ from typing import Any, Callable, Iterator
 
 from omegaconf import OmegaConf
 
-__all__ = ["CONF", "SCHEMA", "defaults", "configured", "kind_of", "fits", "describe", "check_value", "leaves",
-           "SOURCES"]
+__all__ = ["CONF", "SCHEMA", "LENGTHS", "defaults", "configured", "kind_of", "fits", "describe", "check_value",
+           "leaves", "SOURCES"]
 
 # conf/ of the project this library belongs to (the source checkout that `make venv` installs)
 CONF = Path(__file__).resolve().parents[2] / "conf"
@@ -136,6 +136,14 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("launcher.kind", ("local", "slurm")), ("launcher.cluster", ("slurm", "local", "debug")), ("launcher.*", TEXT),
 ]
 
+# settings that are vectors: how many values each takes (1: a plain number too), and what they are
+LENGTHS: list[tuple[str, tuple[int, ...], str]] = [
+    ("*vehicle.inertia", (3,), "three numbers (body axes x, y, z)"),
+    ("sim.flight.noise.gyro", (1, 3), "one number, or three (roll, pitch, yaw)"),
+    ("sim.flight.trajectories.*.center", (3,), "three numbers (x, y, z)"),
+    ("sim.flight.trajectories.*.box", (3,), "three numbers (widths along x, y, z)"),
+]
+
 
 def kind_of(key: str) -> str | tuple[str, ...] | None:
     """The schema's kind of the setting ``key`` (dotted), or None where no entry matches."""
@@ -176,13 +184,19 @@ def fits(value: object, kind: str | tuple[str, ...]) -> bool:
 
 def check_value(key: str, value: object, *, where: str) -> None:
     """Refuse a value of the setting ``key`` that is not of its schema kind (a list's every element
-    checked). A key the schema does not know is checked by its user (a new network's arguments).
+    checked) or, for a vector, not of its length (:data:`LENGTHS`). A key the schema does not know
+    is checked by its user (a new network's arguments).
 
     Raises:
         ConfigError: naming ``where``, the setting, the value and what it must be.
     """
     from nanosysid.errors import ConfigError
 
+    for pattern, lengths, what in LENGTHS:
+        if fnmatch.fnmatchcase(key, pattern):
+            if (len(value) if isinstance(value, (list, tuple)) else 1) not in lengths:
+                raise ConfigError(f"{where}: {key} must be {what}, got {value!r}")
+            break
     kind = kind_of(key)
     if kind is None:
         return

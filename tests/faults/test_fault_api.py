@@ -23,6 +23,7 @@ VEHICLES = [
     ({"mass": -1.0}, "vehicle.mass must be a positive number, got -1.0"),
     ({"mass": 0.0}, "vehicle.mass must be a positive number, got 0.0"),
     ({"inertia": (1.7e-5, -1.7e-5, 2.9e-5)}, "vehicle.inertia must be a positive number, got (1.7e-05, -1.7e-05"),
+    ({"inertia": (1.7e-5, 2.9e-5)}, "vehicle.inertia must be three numbers (body axes x, y, z), got (1.7e-05, 2.9e-05)"),
     ({"k_f": math.nan}, "vehicle.k_f must be a positive number, got nan"),
     ({"k_m": -2e-10}, "vehicle.k_m must be a positive number, got -2e-10"),
     ({"arm": math.inf}, "vehicle.arm must be a positive number, got inf"),

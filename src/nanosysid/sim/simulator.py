@@ -46,16 +46,22 @@ class NoiseConfig:
     """Standard deviations of white measurement noise at the output rate, and the slowly varying
     error of the onboard velocity estimate (first-order Gauss-Markov: the benchmark's velocity is
     an estimate, not the derivative of the mocap position); defaults and units:
-    ``sim.flight.noise`` of ``conf/sim/default.yaml``."""
+    ``sim.flight.noise`` of ``conf/sim/default.yaml``. ``gyro`` is one std for the three body
+    axes or one per axis (roll, pitch, yaw)."""
 
     pos: float
     vel: float
     vel_drift: float
     vel_drift_tau: float
     att: float
-    gyro: float
+    gyro: float | tuple[float, float, float]
     accel: float
     rotor: float
+
+    @classmethod
+    def from_mapping(cls, cfg: Mapping[str, Any]) -> "NoiseConfig":
+        return cls(**{k: tuple(float(x) for x in v) if isinstance(v, (list, tuple)) else float(v)
+                      for k, v in dict(cfg).items()})
 
 
 @configured("sim/default.yaml", "flight", own=("noise", "trajectories", "gains"))
@@ -84,7 +90,7 @@ class SimConfig:
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "SimConfig":
         cfg = dict(cfg)
-        noise = NoiseConfig(**{k: float(v) for k, v in dict(cfg.pop("noise", None) or {}).items()})
+        noise = NoiseConfig.from_mapping(cfg.pop("noise", None) or {})
         gains = MellingerGains.from_mapping(dict(cfg.pop("gains", None) or {}))
         traj = {k: dict(v) for k, v in dict(cfg.pop("trajectories", None) or {}).items()}
         return cls(noise=noise, gains=gains, trajectories=traj or cls().trajectories, **cfg)
