@@ -13,7 +13,10 @@ Command line::
 from __future__ import annotations
 
 import argparse
+import ast
 import fnmatch
+import importlib
+import importlib.util
 import re
 import sys
 import tempfile
@@ -240,13 +243,11 @@ _TARGETS = [("models.*.train.optimizer._target_", "torch.optim"),
 def _check_choices(cfg: dict, where: str) -> None:
     """The classes an optimiser or scheduler names (torch's own) and the report's horizons
     against the protocol's."""
-    import importlib
-
     for key, value in leaves(cfg):
         for pattern, module in _TARGETS:
             if fnmatch.fnmatchcase(key, pattern):
                 mod, _, name = str(value).rpartition(".")
-                if mod != module or not name or not hasattr(importlib.import_module(module), name):
+                if mod != module or not name or name not in _module_names(module):
                     raise ConfigError(f"{where}: {key} must name a class of {module} (e.g. {module}."
                                       f"{'Adam' if module == 'torch.optim' else 'ReduceLROnPlateau'}), got {value!r}")
     ev = cfg.get("eval") or {}
@@ -257,6 +258,30 @@ def _check_choices(cfg: dict, where: str) -> None:
         # tables (a quick run), and the tables say so
         raise ConfigError(f"{where}: eval.table_horizons {shown} go beyond the protocol's {PROTOCOL_HORIZON} steps "
                           f"and eval.horizon = {horizon}; choose horizons up to {longest}")
+
+
+def _module_names(module: str) -> set[str]:
+    """The names a module defines or imports at its top level, read from its source without
+    importing it where it is not loaded yet: every stage checks the whole config, and loading
+    torch for the check alone costs a stage that never uses torch seconds."""
+    if module in sys.modules:
+        return set(vars(sys.modules[module]))
+    top, *rest = module.split(".")
+    spec = importlib.util.find_spec(top)
+    locations = list(spec.submodule_search_locations or []) if spec is not None else []
+    base = Path(locations[0]).joinpath(*rest) if locations else None
+    source = next((p for p in (base / "__init__.py", base.with_suffix(".py")) if p.is_file()), None) if base else None
+    if source is None:
+        return set(vars(importlib.import_module(module)))
+    names = set()
+    for node in ast.parse(source.read_text(encoding="utf-8")).body:
+        if isinstance(node, (ast.ClassDef, ast.FunctionDef)):
+            names.add(node.name)
+        elif isinstance(node, (ast.Import, ast.ImportFrom)):
+            names.update((a.asname or a.name).split(".")[0] for a in node.names)
+        elif isinstance(node, ast.Assign):
+            names.update(t.id for t in node.targets if isinstance(t, ast.Name))
+    return names
 
 
 def _check_protocol(cfg: dict, where: str) -> None:
