@@ -20,13 +20,15 @@ venv: $(STAMP)
 
 # uv installs the same pinned set from the same sources as pip in a fraction of its time: it is
 # given pip's configured indexes and wheel folders, and pip's rule of the best version over all
-# of them. Where uv cannot be had, pip installs it all.
+# of them, and compiles the bytecode as pip does (else every process, every stage among them,
+# compiles torch's sources again where PYTHONDONTWRITEBYTECODE is set). Where uv cannot be had,
+# pip installs it all.
 UV := uv==0.9.0
 pipconf = $${PIP_$(2):-$$($(PYTHON) -m pip config get global.$(1) 2>/dev/null)}
 UV_ENV = UV_FIND_LINKS="$$(echo $(call pipconf,find-links,FIND_LINKS) | tr ' ' ',')" \
 	UV_EXTRA_INDEX_URL="$(call pipconf,extra-index-url,EXTRA_INDEX_URL)" \
 	UV_DEFAULT_INDEX="$(call pipconf,index-url,INDEX_URL)" UV_INDEX_STRATEGY=unsafe-best-match
-UV_PIP = $(UV_ENV) $(BIN)/uv pip install --quiet --python $(BIN)/python -c constraints.txt
+UV_PIP = $(UV_ENV) $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -c constraints.txt
 
 $(STAMP): requirements.txt constraints.txt pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -61,6 +63,7 @@ toolchain-check:
 # repository) are built once, and the DVC tests overlap the rest of the suite
 TEST_WORKERS ?= 2
 test: $(STAMP) toolchain-check
+	@$(BIN)/python -m compileall -q src stages tests >/dev/null  # bytecode the tests' many processes share
 	env $(PINNED) $(BIN)/python -m pytest -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder
 
 # DVC composes params.yaml from conf/ only on `dvc exp run`; compose it here too so an

@@ -27,8 +27,8 @@ class DvcRepo:
         root.mkdir(parents=True)
         for item in ("dvc.yaml", "params.yaml", "conf", "stages", "src", ".dvc", ".dvcignore", ".gitignore"):
             src = ROOT / item
-            if src.is_dir():
-                shutil.copytree(src, root / item, ignore=shutil.ignore_patterns("__pycache__"))
+            if src.is_dir():  # the bytecode too (git ignores it): each stage's process reads it, not the sources
+                shutil.copytree(src, root / item)
             else:
                 shutil.copy(src, root / item)
         # the simulated world's pipeline: the rig's stages need its files (tests/test_rig.py covers them)
