@@ -368,3 +368,21 @@ def test_a_physics_model_says_whose_k_f_and_k_m_it_has(tmp_path, caplog):
     assert "not identified" in said[0] and "3.72e-08" in said[0]  # the paper's vehicle
     assert str(tmp_path / "params.json") in said[1] and "3.5e-08" in said[1] and "6.5e-11" in said[1]
     assert identified.step.vehicle.k_f == 3.5e-8 and nominal.step.vehicle.k_f == Vehicle().k_f
+
+
+
+def test_the_optimiser_check_reads_torchs_classes_without_loading_torch():
+    # a stage that never uses torch (split, sync) reads and checks the whole config without
+    # loading it, and the names read from torch's source are every class the loaded modules hold
+    import subprocess
+    import sys
+
+    code = ("import inspect, sys; from nanosysid import config; config.load_params(path=sys.argv[1]); "
+            "names = {m: config._module_names(m) for m in ('torch.optim', 'torch.optim.lr_scheduler')}; "
+            "loaded = 'torch' in sys.modules; import torch.optim, torch.optim.lr_scheduler; "
+            "missing = sorted(f'{m}.{n}' for m in names for n, v in vars(sys.modules[m]).items() "
+            "if inspect.isclass(v) and n not in names[m]); "
+            "print(loaded, missing, 'Adamm' in names['torch.optim'], 'Adam' in names['torch.optim.lr_scheduler'])")
+    out = subprocess.run([sys.executable, "-c", code, str(ROOT / "params.yaml")], capture_output=True, text=True,
+                         check=True).stdout.split("\n")[0]
+    assert out == "False [] False False", out
