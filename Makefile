@@ -28,12 +28,12 @@ pipconf = $${PIP_$(2):-$$($(PYTHON) -m pip config get global.$(1) 2>/dev/null)}
 UV_ENV = UV_FIND_LINKS="$$(echo $(call pipconf,find-links,FIND_LINKS) | tr ' ' ',')" \
 	UV_EXTRA_INDEX_URL="$(call pipconf,extra-index-url,EXTRA_INDEX_URL)" \
 	UV_DEFAULT_INDEX="$(call pipconf,index-url,INDEX_URL)" UV_INDEX_STRATEGY=unsafe-best-match
-UV_PIP = $(UV_ENV) $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -c constraints.txt
+UV_PIP = $(BIN)/uv pip install --quiet --compile-bytecode --python $(BIN)/python -c constraints.txt
 
 $(STAMP): requirements.txt constraints.txt pyproject.toml
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@if $(PIP) $(UV) 2>/dev/null; then \
-	    $(UV_PIP) -r requirements.txt && $(UV_PIP) --no-deps -e .; \
+	    export $(UV_ENV) && $(UV_PIP) -r requirements.txt && $(UV_PIP) --no-deps -e .; \
 	else \
 	    $(PIP) -r requirements.txt && $(PIP) --no-deps -e .; \
 	fi
