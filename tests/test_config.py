@@ -181,6 +181,21 @@ def test_a_setting_derived_from_another_follows_its_override(tmp_path, monkeypat
     assert cfg.models.physics.identified == "mine.json" and cfg.models.physics_full.identified == want
 
 
+def test_a_conf_file_edited_between_two_stages_of_one_process_is_read_again(tmp_path):
+    # what a setting is derived from, read once per process for every stage it runs: an edit of
+    # conf/ in between (the same length, at once) must reach the next stage
+    conf = tmp_path / "conf"
+    shutil.copytree(ROOT / "conf", conf)
+    assert config.interpolations(conf_dir=conf)["discover.identified"] == "${identify.out_dir}/params.json"
+    path = conf / "config.yaml"
+    text = path.read_text()
+    assert "${identify.out_dir}/params.json" in text
+    path.write_text(text.replace("${identify.out_dir}/params.json", "${identify.out_dir}/paramz.json"))
+    assert config.interpolations(conf_dir=conf)["discover.identified"] == "${identify.out_dir}/paramz.json"
+    (conf / "model" / "naive.yaml").write_text((conf / "model" / "naive.yaml").read_text() + "note: ${seed}\n")
+    assert config.interpolations(conf_dir=conf)["models.naive.note"] == "${seed}"
+
+
 def readme_blocks(section: str) -> list[str]:
     """The code blocks of a README section, in order."""
     text = (ROOT / "README.md").read_text()

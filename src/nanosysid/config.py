@@ -15,6 +15,7 @@ from __future__ import annotations
 import argparse
 import ast
 import fnmatch
+import hashlib
 import importlib
 import importlib.util
 import re
@@ -162,12 +163,22 @@ def interpolations(root: str = "config", groups: Sequence[str] = (), *, conf_dir
     interpolation it is written with (``models.physics.identified``:
     ``${identify.out_dir}/params.json``); ``groups``: the config groups' choices
     (``data=csv``)."""
-    from hydra import compose as hydra_compose
-    from hydra import initialize_config_dir
+    conf_dir = Path(conf_dir).resolve()
+    # a process that runs stages one after another (the tests, the Python API) composes conf/
+    # once for them all, and again only after a file of conf/ changes (its bytes, not its mtime)
+    files = hashlib.sha256(b"".join(bytes(f) + b"\0" + f.read_bytes() for f in sorted(conf_dir.rglob("*.yaml"))))
+    key = (root, tuple(groups), files.hexdigest())
+    if key not in _INTERPOLATIONS:
+        from hydra import compose as hydra_compose
+        from hydra import initialize_config_dir
 
-    with initialize_config_dir(str(Path(conf_dir).resolve()), version_base=None):
-        raw = OmegaConf.to_container(hydra_compose(config_name=root, overrides=list(groups)), resolve=False)
-    return {k: v for k, v in leaves(raw) if isinstance(v, str) and "${" in v}
+        with initialize_config_dir(str(conf_dir), version_base=None):
+            raw = OmegaConf.to_container(hydra_compose(config_name=root, overrides=list(groups)), resolve=False)
+        _INTERPOLATIONS[key] = {k: v for k, v in leaves(raw) if isinstance(v, str) and "${" in v}
+    return dict(_INTERPOLATIONS[key])
+
+
+_INTERPOLATIONS: dict[tuple, dict[str, str]] = {}
 
 
 def rederive(cfg: DictConfig, root: str = "config", groups: Sequence[str] = (), *, addressed: Sequence[str] = (),
