@@ -12,14 +12,14 @@ import torch  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# two cores: two threads for a serial run; one for each of `make test`'s two workers (pytest-xdist),
+# two cores: two threads for a serial run; one for each of `make test`'s workers (pytest-xdist),
 # which would otherwise contend for the same two cores
 torch.set_num_threads(2 if os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") == "1" else 1)
 
 
-# the longest files first: `make test`'s two workers take a file each at a time in this order, so
-# the DVC tests (the longest file) start at once instead of ending the run alone
-FIRST = ("test_dvc.py", "test_pipeline.py")
+# the longest files first: `make test`'s workers take a file each at a time in this order, so the
+# DVC tests (the longest files) start at once instead of ending the run alone
+FIRST = ("test_dvc.py", "test_dvc_own.py", "test_pipeline.py")
 
 
 def pytest_collection_modifyitems(items):

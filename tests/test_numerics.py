@@ -17,11 +17,18 @@ STAGES = [("simulate", None), ("extract", None), ("sync", None), ("filter", None
 
 
 def run_stages(root: Path, env: dict) -> subprocess.Popen:
-    args = tiny_args(root)
-    script = " && ".join(
-        " ".join([sys.executable, "-m", f"stages.{s}", *([name] if name else []), *(f"'{a}'" for a in args)])
-        for s, name in STAGES)
-    return subprocess.Popen(["bash", "-c", script], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
+    """The stages one after another in one process started with ``env`` (a stage pins the code
+    paths where its package is first imported, as each of DVC's stage processes does)."""
+    script = "\n".join([
+        "import importlib, sys",
+        "from stages.common import run_stage",
+        f"for stage, name in {STAGES!r}:",
+        "    main = importlib.import_module(f'stages.{stage}').main",
+        f"    argv = ([name] if name else []) + {tiny_args(root)!r}",
+        "    if run_stage(main, description='', name_arg='model' if name else None, argv=argv):",
+        "        sys.exit(f'stage {stage} failed')",
+    ])
+    return subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
 
 
