@@ -2,9 +2,8 @@
 built there as a new user's is, against the tests' own summed time in the same run.
 
 The clone builds its own ``.venv`` (``make venv``, timed apart) and runs ``make test`` with it.
-The summed time is pytest's per-test time (setup, call and teardown) over every worker: summed
-over wall time is how well the workers overlap (at most their number, 3; a test's time on two
-cores grows with the workers beside it). A failing suite gives no figures.
+The summed time is pytest's per-test time (setup, call and teardown) over both workers: summed
+over wall time is how well the two workers overlap, at most 2. A failing suite gives no figures.
 """
 
 from __future__ import annotations
