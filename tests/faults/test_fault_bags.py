@@ -163,6 +163,26 @@ def test_an_imu_clock_that_steps_by_part_of_a_sample_is_refused(bag, tmp_path, s
     assert float(re.search(r"from (\d+\.\d\d) s", str(e.value)).group(1)) == pytest.approx(4.0, abs=0.6)
 
 
+@pytest.mark.parametrize("step", [0.01, 0.02], ids=["+1 sample", "+2 samples"])
+def test_an_imu_clock_that_steps_by_whole_samples_is_refused(bag, tmp_path, step):
+    """A step of whole 10 ms ticks leaves the IMU's stamps on the odometry's ticks, which the
+    case above reads; the host received the messages when it did, so from 4 s on the IMU's
+    stamps stand ``step`` off the odometry's against the receive times. (A step back by whole
+    ticks repeats a stamp, and one of more than two ticks forward outruns the receive times:
+    extract refuses both.)"""
+    dst = rewrite(bag, tmp_path / bag.name, during(IMU, 4.0, 1e9, lambda m: shift_stamp(m, step)))
+    with pytest.raises(DataError, match=r"from about (\d+) s the IMU's stamps are ([-+]\d+\.\d) ms off the odometry's "
+                                        r"against the host's receive times \(([-+]\d\.\d) samples\), on ticks the two "
+                                        "share: the IMU's clock stepped by whole ticks") as e:
+        process(dst)
+    at, ms, samples = re.search(r"from about (\d+) s .* are ([-+]\d+\.\d) ms .* \(([-+]\d\.\d) samples\)",
+                                str(e.value)).groups()
+    # the least delay of a second of messages is within a fraction of a millisecond of the link's
+    # shortest transit; the bin of one second the step falls in is judged on either side
+    assert float(ms) == pytest.approx(step * 1e3, abs=0.5) and float(samples) == pytest.approx(step / 0.01, abs=0.1)
+    assert 3 <= int(at) <= 6
+
+
 # ---- settings that are not the recording's --------------------------------------------------
 
 def odom_frame(frame):

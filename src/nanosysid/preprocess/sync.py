@@ -552,6 +552,7 @@ def sync_flight(name: str, tables: Mapping[str, pd.DataFrame], cfg: SyncConfig,
 
     _check_coverage(name, t - t[0], masks, cfg.max_loss)
     _check_shared_ticks(name, imu["t_src"].to_numpy(), odom["t_src"].to_numpy(), t[0])
+    _check_receive_step(name, imu, odom, t[0])
     _check_rotors(name, t - t[0], out, masks)
     _check_velocity_frame(name, t - t[0], out)
 
@@ -632,6 +633,67 @@ def _check_shared_ticks(name: str, t_imu: np.ndarray, t_odom: np.ndarray, t0: fl
                     "odometry's, whose clock ticks they share elsewhere in the flight: the IMU's clock stepped, "
                     "and its signals would be moved against the others from there; the recording's IMU "
                     "timestamps are damaged")
+
+
+# A step of the IMU's clock by whole ticks keeps its stamps on the odometry's ticks; the host's
+# receive times still show it. Per RECEIVE_BIN_S of flight, the least delay of each stream (host
+# time minus stamp: the link's fastest message, the line clock_fit draws) is the clock offset plus
+# the shortest transit, the same for two streams of one clock over one link; a step moves the
+# IMU's alone. A bin is judged when both streams have RECEIVE_MIN messages in it, and a level
+# holds over RECEIVE_RUN judged bins (a median of them): a lone late bin (the rig's logs have a
+# few of up to 10 ms) is no step. Streams are on one clock where RECEIVE_SHARED of the IMU's stamps
+# fall on an odometry tick (two clocks of their own meet within TICK_MATCH_S on a few per cent; the
+# rig's logs, which lose rows of one stream and not the other, share 80 % and more)
+RECEIVE_BIN_S, RECEIVE_MIN, RECEIVE_RUN, RECEIVE_SHARED = 1.0, 10, 3, 0.5
+
+
+def _least_delays(t_src: np.ndarray, t_recv: np.ndarray, h0: float, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(n,)`` least ``t_recv - t_src`` of each bin of RECEIVE_BIN_S of host time from ``h0`` (NaN
+    where empty) and ``(n,)`` the bin's message count. Binned by the host's time, which a stamp's
+    step does not move: both streams' bins hold the same stretch of the link."""
+    b = np.floor((t_recv - h0) / RECEIVE_BIN_S).astype(int)
+    keep = (b >= 0) & (b < n)
+    least = np.full(n, np.inf)
+    np.minimum.at(least, b[keep], (t_recv - t_src)[keep])
+    return np.where(np.isfinite(least), least, np.nan), np.bincount(b[keep], minlength=n)
+
+
+def _check_receive_step(name: str, imu: pd.DataFrame, odom: pd.DataFrame, t0: float) -> None:
+    """Refuse IMU stamps whose least receive delay steps against the odometry's by half a sample
+    or more: the IMU's clock stepped by whole ticks (its gyro would sit a sample or more off
+    every other signal from there, on ticks the odometry shares). Streams on clocks of their own
+    (no shared ticks) are not judged."""
+    t_imu, t_odom = imu["t_src"].to_numpy(), odom["t_src"].to_numpy()
+    if len(t_imu) < 2 or len(t_odom) < 2:
+        return
+    period = float(np.median(np.diff(t_imu)))
+    i = np.clip(np.searchsorted(t_odom, t_imu), 1, len(t_odom) - 1)
+    nearest = np.minimum(np.abs(t_odom[i] - t_imu), np.abs(t_odom[i - 1] - t_imu))
+    if not period > 0 or np.mean(nearest < TICK_MATCH_S) < RECEIVE_SHARED:
+        return
+    h_odom = odom["t_recv"].to_numpy()
+    # the host's time at the flight's start t0 (STM32), through the odometry's first message after it
+    first = min(int(np.searchsorted(t_odom, t0)), len(t_odom) - 1)
+    h0 = h_odom[first] - (t_odom[first] - t0)
+    n = int((max(h_odom[-1], imu["t_recv"].to_numpy()[-1]) - h0) // RECEIVE_BIN_S) + 1
+    d_imu, c_imu = _least_delays(t_imu, imu["t_recv"].to_numpy(), h0, n)
+    d_odom, c_odom = _least_delays(t_odom, h_odom, h0, n)
+    judged = np.flatnonzero((c_imu >= RECEIVE_MIN) & (c_odom >= RECEIVE_MIN))
+    if len(judged) < 2 * RECEIVE_RUN:
+        return
+    gap = (d_imu - d_odom)[judged]
+    level = np.median(sliding_window_view(gap, RECEIVE_RUN), axis=1)
+    moved = np.flatnonzero(np.abs(level - level[0]) >= period / 2)
+    if not len(moved):
+        return
+    k = int(moved[0])
+    # the IMU's stamps later by s make its delay (host time minus stamp) s shorter
+    step = float(level[0] - level[k])
+    at = judged[k + RECEIVE_RUN // 2] * RECEIVE_BIN_S
+    raise DataError(f"{name}: from about {at:.0f} s the IMU's stamps are {step * 1e3:+.1f} ms off the odometry's "
+                    f"against the host's receive times ({step / period:+.1f} samples), on ticks the two share: "
+                    "the IMU's clock stepped by whole ticks, and its signals would be moved against the others "
+                    "from there; the recording's IMU timestamps are damaged")
 
 
 # a rotor reading below this share of the flight's median rotor speed, on this many measured
