@@ -176,12 +176,15 @@ def test_the_real_flights_section_is_left_alone_where_the_rig_pipeline_did_not_r
     assert readme.update_rig(md, tmp_path / "paper.md", tmp_path / "fig.png", tmp_path / "copy.png") is None
     assert "old" in md.read_text()
     paper = tmp_path / "paper.md"
-    paper.write_text("# Real\n\n## The results beside the paper's table\n\nRESULTS\n\n## Identification beside the paper's"
+    paper.write_text("# Real\n\n## The results beside the paper's table\n\nRESULTS\n\n## The pattern of the results: SimErr "
+                     "over the physics model's\n\nPATTERN\n\n## Identification beside the paper's"
                      "\n\nIDENT\n\n## The motor alignment beside the authors'\n\nLAG\n\n## Trajectory statistics\n\nNO\n")
     (tmp_path / "fig.png").write_bytes(b"png")
     assert readme.update_rig(md, paper, tmp_path / "fig.png", tmp_path / "docs" / "copy.png")
     text = md.read_text()
     assert all(w in text for w in ("RESULTS", "IDENT", "LAG", "](docs/copy.png)")) and "NO" not in text and "old" not in text
+    # the pattern on the real flights under a title of its own: the physics section has the world's
+    assert "#### The pattern on the real flights: SimErr over the physics model's\n\nPATTERN" in text
 
 
 def test_the_readmes_ablation_names_the_stages_dvc_reruns():

@@ -109,13 +109,18 @@ def physics_section(stats_md: Path, quality_md: Path) -> str:
 
 
 def rig_section(paper_md: Path, figure: Path, figure_copy: str) -> str:
-    """The real flights' section: the results beside the paper's table, the identification and the
-    motor alignment, from the rig pipeline's compare stage, and its MAE figure."""
+    """The real flights' section: the results beside the paper's table, their pattern (the same
+    models' ratios to physics on the paper's own flights, beside the simulated world's in the
+    physics section), the identification and the motor alignment, from the rig pipeline's compare
+    stage, and its MAE figure."""
     text = Path(paper_md).read_text()
     parts = []
-    for head in ("## The results beside the paper's table", "## Identification beside the paper's",
-                 "## The motor alignment beside the authors'"):
-        parts += [head.replace("## ", "#### ", 1), "", _part(text, head), ""]
+    for head, title in (("## The results beside the paper's table", None),
+                        ("## The pattern of the results: SimErr over the physics model's",
+                         "#### The pattern on the real flights: SimErr over the physics model's"),
+                        ("## Identification beside the paper's", None),
+                        ("## The motor alignment beside the authors'", None)):
+        parts += [title or head.replace("## ", "#### ", 1), "", _part(text, head), ""]
     found = []
     result = Path(paper_md).parent / "discovery" / "result.json"
     if result.is_file():
