@@ -610,14 +610,19 @@ def _check_coverage(name: str, t: np.ndarray, masks: Mapping[str, np.ndarray], m
 SHARED_TICKS, LEFT_TICKS, TICK_MATCH_S, STEP_S = 0.9, 0.1, 1e-4, 0.5
 
 
+def _tick_offsets(t_imu: np.ndarray, t_odom: np.ndarray) -> np.ndarray:
+    """``(len(t_imu),)`` the nearest odometry stamp minus each IMU stamp (s); both sorted."""
+    i = np.clip(np.searchsorted(t_odom, t_imu), 1, len(t_odom) - 1)
+    return np.where(np.abs(t_odom[i] - t_imu) < np.abs(t_odom[i - 1] - t_imu), t_odom[i], t_odom[i - 1]) - t_imu
+
+
 def _check_shared_ticks(name: str, t_imu: np.ndarray, t_odom: np.ndarray, t0: float) -> None:
     """Refuse IMU stamps that leave the ticks they shared with the odometry's: the IMU's clock
     stepped (the gyro would be moved against every other signal from there, by less than a
     sample, without a word). Streams on clocks of their own (no shared ticks) are not judged."""
     if len(t_imu) < 2 or len(t_odom) < 2:
         return
-    i = np.clip(np.searchsorted(t_odom, t_imu), 1, len(t_odom) - 1)
-    off = np.where(np.abs(t_odom[i] - t_imu) < np.abs(t_odom[i - 1] - t_imu), t_odom[i], t_odom[i - 1]) - t_imu
+    off = _tick_offsets(t_imu, t_odom)
     on = np.abs(off) < TICK_MATCH_S
     period = float(np.median(np.diff(t_imu)))
     if not period > 0:  # stamps repeated more often than not: no rate to judge a step by
@@ -667,9 +672,7 @@ def _check_receive_step(name: str, imu: pd.DataFrame, odom: pd.DataFrame, t0: fl
     if len(t_imu) < 2 or len(t_odom) < 2:
         return
     period = float(np.median(np.diff(t_imu)))
-    i = np.clip(np.searchsorted(t_odom, t_imu), 1, len(t_odom) - 1)
-    nearest = np.minimum(np.abs(t_odom[i] - t_imu), np.abs(t_odom[i - 1] - t_imu))
-    if not period > 0 or np.mean(nearest < TICK_MATCH_S) < RECEIVE_SHARED:
+    if not period > 0 or np.mean(np.abs(_tick_offsets(t_imu, t_odom)) < TICK_MATCH_S) < RECEIVE_SHARED:
         return
     h_odom = odom["t_recv"].to_numpy()
     # the host's time at the flight's start t0 (STM32), through the odometry's first message after it
