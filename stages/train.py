@@ -25,7 +25,7 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
         summary = train_model(
             network_spec(m), bench.train, Path(m["checkpoint"]), physics=physics_base(m),
             optimizer=optimizer, scheduler=scheduler,
-            horizon=int(t.horizon), stride=int(t.stride), batch_size=int(t.batch_size), epochs=int(t.epochs),
+            horizon=int(t.horizon), horizon_decay=float(t.horizon_decay), stride=int(t.stride), batch_size=int(t.batch_size), epochs=int(t.epochs),
             patience=int(t.patience), seed=int(t.seed), val_runs=plain(t.val_runs), log_dir=log_dir,
             accelerator=str(cfg.trainer.accelerator), devices=plain(cfg.trainer.devices), compile=bool(t.compile),
             threads=int(t.threads))

@@ -104,6 +104,24 @@ def test_representation_round_trip(flights):
     assert torch.equal(back[:, :6], y[:, :6]) and torch.equal(back[:, 10:], y[:, 10:])
 
 
+def test_the_loss_weighs_step_h_by_the_horizon_decay():
+    """Hand-worked: 3 steps, errors of 1 and 2 output standard deviations at steps 1 and 3 of one
+    output of 12. Unweighted, (1 + 4) / 36. With decay ln 2 the steps weigh 1, 1/2, 1/4, scaled to
+    a mean of 1: 12/7, 6/7, 3/7, so (12/7 * 1 + 3/7 * 4) / 36 = 2/21."""
+
+    class Still(torch.nn.Module):
+        y_std = torch.full((12,), 2.0)
+
+        def rollout(self, yt0, u):
+            return torch.zeros(yt0.shape[0], u.shape[1], 12)
+
+    target = torch.zeros(5, 3, 12)
+    target[:, 0, 4], target[:, 2, 4] = 2.0, -4.0
+    batch = (torch.zeros(5, 12), torch.zeros(5, 3, 4), target)
+    assert SysIdModule(Still()).loss(batch).item() == pytest.approx(5 / 36, rel=1e-6)
+    assert SysIdModule(Still(), horizon_decay=np.log(2)).loss(batch).item() == pytest.approx(2 / 21, rel=1e-6)
+
+
 @pytest.mark.parametrize("arch", ARCHS)
 def test_short_training_lowers_the_loss_and_is_deterministic(arch, flights, tmp_path):
     s1 = train_model(NETWORKS[arch], flights, tmp_path / "a.pt", physics=physics(arch), progress=False, **QUICK)

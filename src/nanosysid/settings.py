@@ -99,7 +99,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("models.*.identified", TEXT_OR_NULL), ("models.*.dt", POSITIVE), ("models.*.substeps", COUNT),
     ("models.oracle.effects.*", NONNEG), ("models.*.rotor_delay", NONNEG_OR_NULL), ("models.oracle.compile", FLAG),
     ("models.*.network.*", FREE),
-    ("models.*.train.horizon", COUNT), ("models.*.train.stride", COUNT), ("models.*.train.batch_size", COUNT),
+    ("models.*.train.horizon", COUNT), ("models.*.train.horizon_decay", NONNEG), ("models.*.train.stride", COUNT), ("models.*.train.batch_size", COUNT),
     ("models.*.train.epochs", COUNT), ("models.*.train.patience", NONNEG_COUNT), ("models.*.train.compile", FLAG),
     ("models.*.train.threads", COUNT),
     ("models.*.train.optimizer.lr", POSITIVE), ("models.*.train.val_runs", COUNT),
