@@ -60,7 +60,8 @@ class SysIdModule(pl.LightningModule):
         pred = self.model.rollout(yt0, u)
         err = ((pred - target) / self.model.y_std) ** 2
         if self.horizon_decay:
-            w = torch.exp(-self.horizon_decay * torch.arange(err.shape[1], dtype=err.dtype))
+            h = torch.arange(err.shape[1], dtype=err.dtype, device=err.device)
+            w = torch.exp(-self.horizon_decay * h)
             err = err * (w / w.mean())[:, None]
         return err.mean()
 
