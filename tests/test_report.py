@@ -167,3 +167,41 @@ def test_the_campaigns_world_table_holds_strict_json_with_an_open_interval_end_a
 
     (got,) = json.loads(cell, parse_constant=refuse)
     assert got["high"] is None and got["low"] == 0.0775 and got["covered"] is True
+
+
+def test_the_world_comparison_measures_how_far_each_flights_mean_residual_moves():
+    # three hovers on equal rotor speeds (no nominal torque), each with its own accelerometer
+    # bias along y (0, 0.1, 0.2 m/s²) and its own constant pitch acceleration (0, 1, 2 rad/s²):
+    # the spread of the flights' mean F_y residual is m * 0.1 and of tau_y J_y * 1 (std, n - 1)
+    import yaml
+
+    from nanosysid.dataio import Flight
+    from nanosysid.report import realism
+    from nanosysid.vehicle import Vehicle
+
+    vehicle = Vehicle.from_mapping(yaml.safe_load(open("conf/vehicle/cf21bl.yaml")))
+    t = np.arange(400) * 0.01
+    u = np.full((400, 4), 2000.0)
+    hover_az = vehicle.k_f * 4 * 2000.0**2 / vehicle.mass
+    flights = []
+    for k, (bias, alpha) in enumerate(((0.0, 0.0), (0.1, 1.0), (0.2, 2.0)), start=1):
+        y = np.zeros((400, 13))
+        y[:, 9] = 1.0
+        y[:, 11] = alpha * t
+        extra = {"ax_body": np.zeros(400), "ay_body": np.full(400, bias), "az_body": np.full(400, hover_az)}
+        flights.append(Flight(f"melon_20250101_run{k}", t, u, y, extra))
+    spread = realism.world_figures(flights, vehicle)["all"]
+    assert spread["F_y residual, spread of the flights' means [mN]"] == pytest.approx(1e3 * vehicle.mass * 0.1)
+    assert spread["tau_y residual, spread of the flights' means [mN·m]"] == pytest.approx(1e3 * vehicle.inertia[1])
+    for ch in ("F_x", "F_z"):
+        assert spread[f"{ch} residual, spread of the flights' means [mN]"] == pytest.approx(0.0, abs=1e-9)
+    for ch in ("tau_x", "tau_z"):
+        assert spread[f"{ch} residual, spread of the flights' means [mN·m]"] == pytest.approx(0.0, abs=1e-9)
+    # beside flights whose pitch means move twice as far, the world's figure is half the real one: listed
+    real = realism.world_figures([Flight(f.name, f.t, f.u, np.column_stack([f.y[:, :11], 2 * f.y[:, 11:12],
+                                                                           f.y[:, 12:]]), f.extra)
+                                  for f in flights], vehicle)
+    rows = {r["figure"]: r for r in realism.compare({"all": spread}, {"all": real["all"]}, (0.02, 0.02))["rows"]}
+    assert rows["tau_y residual, spread of the flights' means [mN·m]"]["ratio"] == pytest.approx(0.5)
+    assert rows["tau_y residual, spread of the flights' means [mN·m]"]["off"]
+    assert not rows["F_y residual, spread of the flights' means [mN]"]["off"]
