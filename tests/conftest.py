@@ -1,5 +1,4 @@
 import os
-import sys
 from pathlib import Path
 
 from nanosysid import numerics
@@ -9,6 +8,7 @@ numerics.pin()  # before numpy and torch are loaded, as every stage does
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 import torch  # noqa: E402
+from dvcenv import dvc_env  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -29,11 +29,7 @@ def pytest_collection_modifyitems(items):
 @pytest.fixture
 def venv_env():
     """Environment in which `python` and `dvc` are this interpreter's (the venv's)."""
-    env = dict(os.environ)
-    env["PATH"] = str(Path(sys.executable).parent) + os.pathsep + env.get("PATH", "")
-    env["DVC_NO_ANALYTICS"] = "1"
-    env["PYTHONHASHSEED"] = "0"
-    return env
+    return dvc_env()
 
 
 @pytest.fixture

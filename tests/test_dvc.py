@@ -1,17 +1,16 @@
 """The pipeline as DVC runs it: only what changed reruns, queued experiments share the run cache,
 outputs and the run cache travel through a remote (a user's own flights: test_dvc_own.py)."""
 
-import os
 import shlex
 import shutil
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
 import yaml
 
+from dvcenv import dvc_env
 from nanosysid.errors import ToolchainError
 from nanosysid.export.mcu import require_toolchain
 from test_pipeline import TINY_SIM
@@ -71,12 +70,6 @@ def _no_toolchain() -> list[str]:
 
 NO_TOOLCHAIN = _no_toolchain()
 SMALL = [a for o in TINY_SIM + TINY_CAMPAIGN + ONE_EXPORT + NO_TOOLCHAIN for a in ("-S", o)]
-
-
-def dvc_env() -> dict:
-    """This interpreter's ``dvc`` and ``python`` first on the path, DVC's analytics off."""
-    return dict(os.environ, PATH=str(Path(sys.executable).parent) + os.pathsep + os.environ.get("PATH", ""),
-                DVC_NO_ANALYTICS="1", PYTHONHASHSEED="0")
 
 
 @pytest.fixture(scope="module")

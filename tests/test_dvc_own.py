@@ -6,7 +6,8 @@ import shutil
 import pytest
 import yaml
 
-from test_dvc import SMALL, DvcRepo, dvc_env
+from dvcenv import dvc_env
+from test_dvc import SMALL, DvcRepo
 
 
 @pytest.fixture(scope="module")

@@ -207,15 +207,15 @@ def readme_commands(prefix: str) -> list[str]:
 def test_the_readmes_minio_remote_commands_configure_dvc(tmp_path):
     import shlex
     import subprocess
-    import sys
+
+    from dvcenv import dvc_env
 
     add, = readme_commands("dvc remote add")
     modify, = readme_commands("dvc remote modify")
     # endpointurl is an S3 option: the remote is the comment's s3:// alternative
     s3 = re.search(r"or: (s3://\S+)", next(x for x in (ROOT / "README.md").read_text().splitlines()
                                            if x.startswith("dvc remote add"))).group(1)
-    env = dict(__import__("os").environ, PATH=f"{Path(sys.executable).parent}:{__import__('os').environ['PATH']}",
-               DVC_NO_ANALYTICS="1")
+    env = dvc_env()
     for cmd in (["git", "init", "-q"], ["dvc", "init", "-q"], shlex.split(add)[:-1] + [s3], shlex.split(modify)):
         r = subprocess.run(cmd, cwd=tmp_path, env=env, capture_output=True, text=True)
         assert r.returncode == 0, (cmd, r.stderr)

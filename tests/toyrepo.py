@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+from dvcenv import dvc_env
+
 STAGE = """import sys, time
 name, fail = sys.argv[1], sys.argv[2] == "fail"
 t0 = time.time()
@@ -22,7 +24,7 @@ open(name + ".txt", "w").write(f"{t0} {time.time()}")
 def env() -> dict[str, str]:
     """The environment of a runner that imports this checkout's library."""
     src = str(Path(__file__).resolve().parents[1] / "src")
-    return dict(os.environ, DVC_NO_ANALYTICS="1", PYTHONPATH=src + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    return dvc_env(PYTHONPATH=src + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
 
 def toy_repo(root: Path, env: dict, fail: str = "") -> None:
