@@ -112,13 +112,13 @@ WHY = {
              "grows less than the setting, so the world stays below the rig; the rig's also differs from one "
              "trajectory to another (propeller vibration), the world's does not",
     "spread": "the world's flights differ only in their random draws (the turbulence, the thrust fluctuation); "
-              "the rig's mean pitch torque moves between groups of consecutive flights (the centre of mass moved "
-              "by a few tenths of a millimetre when the battery was changed, most likely), and so do its mean "
-              "forces, read from the accelerometer (a bias new at each power-up, most likely; the world's "
-              "accelerometer has none). A world whose centre of mass moves from flight to flight by the rig's amount was flown: "
-              "it matches the pitch figure but leaves the learned models' angular-velocity ratios where they "
-              "are and takes the LSTM's position ratio out of the paper's band, so the world keeps one centre "
-              "of mass",
+              "the rig's mean pitch and yaw torques move together between groups of consecutive flights (the "
+              "vehicle changed between them: its centre of mass moved by a few tenths of a millimetre when the "
+              "battery was changed, most likely), and so do its mean forces, read from the accelerometer (a "
+              "bias new at each power-up, most likely; the world's accelerometer has none). A world whose "
+              "centre of mass moves from flight to flight by the rig's amount was flown: it matches the pitch "
+              "figure but leaves the learned models' angular-velocity ratios where they are and takes the "
+              "LSTM's position ratio out of the paper's band, so the world keeps one centre of mass",
     "residual": "the world's effects were sized so that the benchmark's table on the simulated world shows the "
                 "paper's pattern (reports/sim/stats.md), not fitted to the real residual",
     "median frequency": "the world's time-varying effects have corners of 1 Hz (turbulence) and 3 Hz (thrust "
