@@ -3,7 +3,7 @@ noise, fitted with the folds and blocks discovery uses, many times over."""
 
 import numpy as np
 
-from nanosysid.discover.stats import half_width as _half_width, jackknife as _jackknife
+from nanosysid.discover.stats import half_width as _half_width, jackknife as _jackknife, spread
 from nanosysid.discover.fit import Grams
 
 
@@ -30,6 +30,22 @@ def test_a_95_percent_interval_covers_the_truth_95_percent_of_the_time():
         covered += abs(estimate[0] - theta[0]) <= half
     # binomial std of the share at 95 %: 0.5 %; the normal quantile with 10 folds covers 92 %
     assert 0.935 <= covered / trials <= 0.965, covered / trials
+
+
+def test_the_spread_over_flights_and_its_interval_cover_the_laws_std_95_percent_of_the_time():
+    # 1, 2, 3: deviations -1, 0, 1, so s² = 2 / (3 - 1) = 1
+    assert spread(np.array([[1.0], [2.0], [3.0]]))[0] == np.array([1.0])
+    # 17 flights (the rig's training set), two channels of stds 0.17 and 0.05, 4000 draws
+    rng = np.random.default_rng(5)
+    sigma = np.array([0.17, 0.05])
+    draws = rng.standard_normal((4000, 17, 2)) * sigma + 0.3
+    covered = np.zeros(2)
+    for values in draws:
+        s, low, high = spread(values)
+        assert np.all(low < s) and np.all(s < high)
+        covered += (low <= sigma) & (sigma <= high)
+    # binomial std of a 95 % rate over 4000 draws: 0.34 %
+    assert np.all(np.abs(covered / len(draws) - 0.95) < 0.012), covered / len(draws)
 
 
 def test_the_quantile_is_students_t_with_a_degree_fewer_than_the_groups():

@@ -62,13 +62,18 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
                "test": [flight_data(f, search.vehicle, 0.0, window=search.window, order=search.order).r
                         for f in test_flights]}
     out: dict[str, Any] = {"channels": list(CHANNELS), "noise": [float(x) for x in result.noise]}
-    res = {}
+    res, left = {}, {}
     for part, data in (("test", test), ("train", train)):
-        after = [d.r - e for d, e in zip(data, _explained(data, names, theta, generic_fits, lib))]
-        b, a = np.concatenate(nominal[part]), np.concatenate(after)
+        left[part] = [d.r - e for d, e in zip(data, _explained(data, names, theta, generic_fits, lib))]
+        b, a = np.concatenate(nominal[part]), np.concatenate(left[part])
         res[part] = (b, a)
         out[f"rms_{part}"] = {"before": _rms(b), "after": _rms(a)}
     b, a = res["train"]
+    dt = float(np.median(np.diff(search.flights[0].t)))
+    # a constant of each flight (where the vehicle changes between flights): each training flight's mean residual
+    out["flight_means"] = {"flights": [f.name for f in search.flights], "dt": dt,
+                           "before": [[float(x) for x in r.mean(axis=0)] for r in nominal["train"]],
+                           "after": [[float(x) for x in r.mean(axis=0)] for r in left["train"]]}
     # which channel's disagreement costs the benchmark most: the nominal model's rollouts on the
     # test flights, given each channel's measured residual as a known extra wrench
     out["rollouts"] = _rollout_shares(result, search, test_flights, horizon, batch_size)
@@ -89,7 +94,6 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
     # frequency bands: each channel's residual power per band, before and after
     from scipy.signal import welch  # here: scipy.signal costs 0.6 s, and every predictor imports the package
 
-    dt = float(np.median(np.diff(search.flights[0].t)))
     bands, spectra = {}, {}
     for label, arr in (("before", b), ("after", a)):
         freq, psd = welch(arr, fs=1 / dt, nperseg=256, axis=0)

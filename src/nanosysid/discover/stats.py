@@ -1,4 +1,5 @@
-"""Discovery's statistics: the signed-rank test of per-block gains and the jackknife over folds."""
+"""Discovery's statistics: the signed-rank test of per-block gains, the jackknife over folds and
+the spread of per-flight values."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import numpy as np
 # scipy.stats is imported where it is used: it costs 0.7 s, and every predictor imports this
 # package (for the augmented model), also where no test is run
 
-__all__ = ["pvalue", "jackknife", "half_width"]
+__all__ = ["pvalue", "jackknife", "half_width", "spread"]
 
 
 def pvalue(g: np.ndarray) -> tuple[float, float]:
@@ -36,3 +37,16 @@ def half_width(stderr: float, groups: int, level: float = 0.95) -> float:
     from scipy.stats import t as student_t
 
     return float(student_t.ppf(0.5 + level / 2, max(groups - 1, 1)) * stderr)
+
+
+def spread(values: np.ndarray, level: float = 0.95) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Standard deviation over the rows of ``values (n, k)`` (one row per flight; n - 1 in the
+    denominator) and its ``level`` interval, ``(s, low, high)`` each ``(k,)``: for values drawn
+    independently from one normal law, ``(n - 1) s² / σ²`` is chi-squared with n - 1 degrees of
+    freedom."""
+    from scipy.stats import chi2
+
+    values = np.asarray(values, dtype=float)
+    dof = len(values) - 1
+    s = values.std(axis=0, ddof=1)
+    return (s, s * np.sqrt(dof / chi2.ppf(0.5 + level / 2, dof)), s * np.sqrt(dof / chi2.ppf(0.5 - level / 2, dof)))

@@ -6,16 +6,18 @@ import dataclasses
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 
 from nanosysid.dataio import atomic_file, json_text
 from nanosysid.discover import CHANNELS, LIBRARY, VERDICTS, DiscoveryResult
 from nanosysid.discover.analysis import BANDS, REGIMES
 from nanosysid.discover.sources import AGREE
+from nanosysid.discover.stats import spread
 from nanosysid.effects import SLOW_TIMES
 from nanosysid.metrics import QUANTITIES
 from nanosysid.report.tables import results_table_md
 from nanosysid.viz.figures import mae_horizon_figure
-from nanosysid.viz.discovery import channel_figure, finding_figure, spectrum_figure
+from nanosysid.viz.discovery import channel_figure, finding_figure, flight_means_figure, spectrum_figure
 
 __all__ = ["write_report", "result_dict", "gap_closed", "verdicts_markdown", "headline"]
 
@@ -448,6 +450,36 @@ def _candidate_row(result: DiscoveryResult, name: str) -> dict[str, Any] | None:
     return None
 
 
+def _flight_constant(result: DiscoveryResult, phys, figs: Path) -> list[str]:
+    """How far the roll and pitch torque residual's mean moves from one training flight to the
+    next, and what such a constant costs a model that integrates the torque over the horizon."""
+    fm = result.analysis["flight_means"]
+    if len(fm["flights"]) < 3:
+        return []
+    chs = ("tau_x", "tau_y")
+    cols = [CHANNELS.index(ch) for ch in chs]
+    before, low, high = (1e3 * v[cols] for v in spread(np.asarray(fm["before"])))
+    after = 1e3 * spread(np.asarray(fm["after"]))[0][cols]
+    flight_means_figure(result.analysis, list(chs), figs / "torque_xy_flights.png",
+                        "each training flight's mean roll and pitch torque residual")
+    text = (f"**A constant of each flight.** The mean of a flight's roll and pitch torque residual moves from one "
+            f"flight to the next (the figure): over the {len(fm['flights'])} training flights its standard deviation "
+            "is " + " and ".join(f"{_fmt(b)} mN·m for {ch} (95 % {_fmt(lo)} … {_fmt(hi)})"
+                                 for ch, b, lo, hi in zip(chs, before, low, high))
+            + f" with the nominal model, {_fmt(after[0])} and {_fmt(after[1])} with what was found. No function of "
+            "the state or of one flight's inputs can know such a constant")
+    if phys is not None:
+        H = len(phys.mae["w"])
+        turn = [1e-3 * b / result.vehicle.inertia[c - 3] * H * fm["dt"] for b, c in zip(before, cols)]
+        text += (f": a torque of one standard deviation held over the horizon's {H} samples changes the angular "
+                 f"velocity by {_fmt(turn[0])} rad/s ({chs[0]}) and {_fmt(turn[1])} rad/s ({chs[1]}) at h = {H}, "
+                 f"where holding the rate (dω/dt = 0) is off by {_fmt(phys.mae['w'][-1])} rad/s (its mean absolute "
+                 "error on the test flights)")
+    return [text + ".", "", "![each flight's mean tau_x, tau_y residual](figures/torque_xy_flights.png)", "",
+            "*Each training flight's mean roll and pitch torque residual, nominal model (red) and with what was "
+            "found (green).*", ""]
+
+
 def _observations(result: DiscoveryResult, references: dict[str, Any], figs: Path) -> list[str]:
     """The section answering the benchmark paper's three observations on its physical model."""
     a = result.analysis
@@ -525,6 +557,8 @@ def _observations(result: DiscoveryResult, references: dict[str, Any], figs: Pat
                  f"gain {100 * brow['heldout_gain']:.3f} %, p = {brow['p']:.2g}).")
     L += ["", "![tau_x, tau_y residual spectra](figures/torque_xy.png)", "",
           "*Power spectral density of the roll and pitch torque residual.*", ""]
+    phys = next((sc for label, sc in references.items() if label.startswith("physics")), None)
+    L += _flight_constant(result, phys, figs)
     pr = a["predictable"]
     L += ["**How much of what is left any function of the measured signals could predict** (the data's limit): a "
           "least-squares fit of the residual left by everything found, on the generic terms of the state, the rotor "
@@ -539,7 +573,6 @@ def _observations(result: DiscoveryResult, references: dict[str, Any], figs: Pat
     L.append("")
     decide = [f"`{n}`: {LIBRARY[n].excited_by}" for n in ("slow_actuation", "battery_thrust")]
     L += ["Flights that would decide what these flights cannot: " + "; ".join(decide) + ".", ""]
-    phys = next((sc for label, sc in references.items() if label.startswith("physics")), None)
     lim = a.get("limit_simerr")
     if lim:
         L += ["**The data's limit in the benchmark**: the augmented model's rollouts on the test flights given, as "

@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from nanosysid.dataio import atomic_file  # noqa: E402
+from nanosysid.dataio import atomic_file, parse_flight_name  # noqa: E402
 from nanosysid.effects import CHANNELS  # noqa: E402
 
 __all__ = ["channel_figure", "finding_figure", "spectrum_figure"]
@@ -81,6 +81,28 @@ def spectrum_figure(a: dict[str, Any], channels: list[str], path: Path, title: s
         ax.set_ylabel(f"PSD [{unit}²/Hz]")
         ax.set_title(ch, fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
+    axes[0][0].legend(fontsize=7)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def flight_means_figure(a: dict[str, Any], channels: list[str], path: Path, title: str) -> None:
+    """Each training flight's mean residual of ``channels``, nominal model and with what
+    discovery found, one panel each, the flights in the training set's order."""
+    fm = a["flight_means"]
+    x = np.arange(len(fm["flights"]))
+    fig, axes = plt.subplots(1, len(channels), figsize=(4.4 * len(channels), 3.6), squeeze=False)
+    for ax, ch in zip(axes[0], channels):
+        c = CHANNELS.index(ch)
+        unit = "mN" if ch.startswith("F") else "mN·m"
+        ax.bar(x - 0.2, [1e3 * m[c] for m in fm["before"]], 0.4, color="C3", label="nominal model")
+        ax.bar(x + 0.2, [1e3 * m[c] for m in fm["after"]], 0.4, color="C2", label="with what was found")
+        ax.set_xticks(x, ["{} {}".format(*parse_flight_name(n)) for n in fm["flights"]], rotation=90, fontsize=6)
+        ax.set_ylabel(f"flight's mean residual [{unit}]")
+        ax.set_title(ch, fontsize=10)
+        ax.axhline(0.0, color="k", lw=0.5)
+        ax.grid(True, axis="y", alpha=0.3)
     axes[0][0].legend(fontsize=7)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
