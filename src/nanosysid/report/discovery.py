@@ -640,7 +640,15 @@ def headline(summary: dict[str, Any], report: str) -> list[str]:
               f"- roll/pitch torque below 1 Hz: {low_share('tau_x')} and {low_share('tau_y')} of its power explained "
               "on the training flights; `slow_actuation` "
               + next((f["verdict"] for f in fs if (f["name"] or (f["alternatives"] or [None])[0]) == "slow_actuation"),
-                     "not chosen") + "."]
+                     "not chosen") + ";"]
+        fm = a.get("flight_means")
+        if fm and len(fm["flights"]) >= 3:
+            s, low, high = (1e3 * v for v in spread(np.asarray(fm["before"])))
+            L.append(f"- a constant of each flight: the training flights' mean roll and pitch torque residual moves by "
+                     + " and ".join(f"{_fmt(s[c])} mN·m (95 % {_fmt(low[c])} … {_fmt(high[c])})" for c in (3, 4))
+                     + f" from flight to flight (standard deviation over {len(fm['flights'])} flights).")
+        else:
+            L[-1] = L[-1][:-1] + "."
     return L
 
 
