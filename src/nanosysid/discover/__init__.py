@@ -254,7 +254,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         result.sindy = sindy_baseline(search, v, test_flights, horizon, batch_size)
     if analysis and diverged is None:
         result.analysis = disagreement(result, search, fit.names, fit.measured, selection.delay, test_flights,
-                                       generic_fits=rest.fits, horizon=horizon, batch_size=batch_size)
+                                       generic_fits=rest.fits, horizon=horizon, batch_size=batch_size,
+                                       partners=pairs.partners)
     return result
 
 

@@ -51,9 +51,10 @@ def _rms(a: np.ndarray) -> list[float]:
 
 
 def disagreement(result, search, names: list[str], theta: np.ndarray, delay: float, test_flights: Sequence[Flight],
-                 *, generic_fits=(), horizon: int, batch_size: int) -> dict[str, Any]:
+                 *, generic_fits=(), horizon: int, batch_size: int, partners: Sequence[int] = ()) -> dict[str, Any]:
     """Tables (and the data of the report's figures) of where the models disagree, in N and N m
-    beside each channel's noise floor."""
+    beside each channel's noise floor; ``partners``: per training flight, the index of its run of
+    the same reference (:func:`nanosysid.discover.sources.reference_pairs`), or -1."""
     train = search.data(delay)
     lib = search.terms(delay)[0] if generic_fits else None
     test = [flight_data(f, search.vehicle, delay, window=search.window, order=search.order) for f in test_flights]
@@ -71,7 +72,7 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
     b, a = res["train"]
     dt = float(np.median(np.diff(search.flights[0].t)))
     # a constant of each flight (where the vehicle changes between flights): each training flight's mean residual
-    out["flight_means"] = {"flights": [f.name for f in search.flights], "dt": dt,
+    out["flight_means"] = {"flights": [f.name for f in search.flights], "dt": dt, "partners": list(partners),
                            "before": [[float(x) for x in r.mean(axis=0)] for r in nominal["train"]],
                            "after": [[float(x) for x in r.mean(axis=0)] for r in left["train"]]}
     # which channel's disagreement costs the benchmark most: the nominal model's rollouts on the
