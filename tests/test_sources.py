@@ -95,3 +95,19 @@ def test_a_fit_that_least_squares_attenuated_fails_the_check_though_it_repeats()
     residual[:, 3] = 2.0 * reference + rng.normal(size=4 * n)
     got = reference_check(contribution, residual, pairs, blocks, folds)
     assert got["ci"][0] < 2.0 < got["ci"][1] and not got["holds"]
+
+
+def test_a_constant_two_runs_flown_back_to_back_share_repeats_only_until_each_flights_mean_is_removed():
+    # runs 1 and 2 of the square share a constant of 3 noise floors (the vehicle as it was) over a
+    # disturbance of time of their own (std about 1): power above the noise about 9 + 1, of which
+    # the constant's 9 repeats (about 90 %); with each flight's own mean removed, nothing does
+    rng, flights, pairs, n, blocks = _paired(2)
+    noise = rng.normal(size=4 * n)
+    disturbance = np.concatenate([_slow(rng, n, 1.0) for _ in range(4)])
+    disturbance -= np.repeat([disturbance[k * n:(k + 1) * n].mean() for k in range(4)], n)  # zero mean per flight
+    left = noise + disturbance + np.repeat([3.0, 3.0, -1.0, 2.0], n)
+    got = source(left, pairs, blocks, 0.01, flight=np.repeat(np.arange(4), n))
+    power = np.mean(disturbance[:2 * n] ** 2) + 9.0
+    assert abs(got["repeat_share"] - 9.0 / power) < 0.05, got
+    assert abs(got["within_share"]) < 0.05, got
+    assert "within_share" not in source(left, pairs, blocks, 0.01)

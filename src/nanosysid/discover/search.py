@@ -64,14 +64,17 @@ class Search:
         sub._parent, sub._skip = self, flight
         sub.flights = [f for i, f in enumerate(self.flights) if i != flight]
         sub.measured = [m for i, m in enumerate(self.measured) if i != flight]
-        sizes = [len(d.r) for d in self.data(0.0)]
-        mask = np.repeat(np.arange(len(sizes)) != flight, sizes)
-        old = self.blocks[mask]
+        old = self.blocks[self.flight_index != flight]
         sub._blocks_kept = np.unique(old)
         sub.blocks = np.searchsorted(sub._blocks_kept, old)
         sub.folds = min(self.folds, len(sub._blocks_kept) // 2)
         sub._data, sub._grams, sub._terms, sub._fit_grams = {}, {}, {}, {}
         return sub
+
+    @property
+    def flight_index(self) -> np.ndarray:
+        """Each regression sample's flight (its index in ``flights``), ``(N,)``."""
+        return np.repeat(np.arange(len(self.flights)), [len(d.r) for d in self.data(0.0)])
 
     def data(self, delay: float) -> list[FlightData]:
         key = round(float(delay), 6)

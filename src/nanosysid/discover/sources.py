@@ -134,7 +134,8 @@ def reference_check(contribution: np.ndarray, residual: np.ndarray, pairs: Pairs
             "holds": bool(hi >= 0.5 and slope <= AGREE)}
 
 
-def source(left: np.ndarray, pairs: Pairs, blocks: np.ndarray, alpha: float) -> dict[str, Any]:
+def source(left: np.ndarray, pairs: Pairs, blocks: np.ndarray, alpha: float,
+           flight: np.ndarray | None = None) -> dict[str, Any]:
     """What a residual ``left (N,)`` (in noise floors) that no function of the state explains is
     a function of: the share of its power above the noise that repeats between runs of one
     reference (the mean product of a sample and its partner's over the mean square less the
@@ -142,7 +143,10 @@ def source(left: np.ndarray, pairs: Pairs, blocks: np.ndarray, alpha: float) -> 
     positive). Most of it repeats, significantly: a function of the reference (the input history,
     or a state signal the library lacks); less than half does, with runs to compare: a function of
     time (the share that repeats is said: a biased coefficient leaves a part that follows the
-    reference); no runs of one reference: undecided."""
+    reference); no runs of one reference: undecided. With ``flight (N,)``, each sample's flight,
+    the share is also given with each flight's own mean removed (``within_share``): runs of one
+    reference flown back to back can share a constant of the flight (the vehicle as it was),
+    which repeats between them without being a function of the reference."""
     ok = pairs.index >= 0
     if ok.sum() < 100:
         return {"source": SOURCES[2], "why": "no two runs of one reference to compare"}
@@ -155,5 +159,9 @@ def source(left: np.ndarray, pairs: Pairs, blocks: np.ndarray, alpha: float) -> 
     excess = max(float(np.mean(left[ok] ** 2)) - 1.0, 1e-12)
     share = float(np.mean(prod[ok]) / excess)
     repeats = p <= alpha and share >= 0.5
-    return {"source": SOURCES[0] if repeats else SOURCES[1], "repeat_share": share, "z": z, "p": p,
-            "blocks": int(used.sum()), "samples": int(ok.sum())}
+    out = {"source": SOURCES[0] if repeats else SOURCES[1], "repeat_share": share, "z": z, "p": p,
+           "blocks": int(used.sum()), "samples": int(ok.sum())}
+    if flight is not None:
+        within = left - (np.bincount(flight, weights=left) / np.bincount(flight))[flight]
+        out["within_share"] = float(np.mean(within[ok] * within[pairs.index[ok]]) / excess)
+    return out

@@ -299,7 +299,7 @@ def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, tota
                                   (search.noise_parts[:, c] / search.noise[c]) ** 2, search.window, search.order),
                     "rms": float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()) / search.weights[c])}
         if pairs is not None:
-            evidence["source"] = source(left[:, c], pairs, search.blocks, alpha)
+            evidence["source"] = source(left[:, c], pairs, search.blocks, alpha, search.flight_index)
         # a residual that repeats with the reference is a function of what the reference makes of
         # the flight: the state beyond the library's entries and terms, or the input history beyond
         # its lags; no test here tells the two apart, so it is unnamed, never "not of the state"

@@ -142,8 +142,11 @@ def _source_text(src: dict[str, Any] | None) -> str:
     if src["source"] == "undecided":
         return (f"What it is a function of is undecided: {src['why']}; fly one reference twice to tell a function "
                 "of time from one of the input history.")
+    within = ("" if src.get("within_share") is None else
+              f", {100 * src['within_share']:.0f} % with each flight's own mean removed (runs flown back to back can "
+              "share a constant of the flight)")
     shared = (f"{100 * src['repeat_share']:.0f} % of its power above the noise repeats between runs of one reference "
-              f"(signed-rank z = {src['z']:.1f}, p = {src['p']:.2g} over {src['blocks']} blocks)")
+              f"(signed-rank z = {src['z']:.1f}, p = {src['p']:.2g} over {src['blocks']} blocks){within}")
     if src["source"] == "time":
         return (f"**A function of time**: {shared}, so most of it is a new realisation every flight, a disturbance "
                 "no model of the measured signals can predict.")
@@ -415,8 +418,11 @@ def _finding_phrase(f) -> str:
         src = ev["source"]
         return (f"unnamed on {', '.join(f.channels)}: {1e3 * ev['rms']:.3g} {_unit(f.channels[0])} RMS in {ev['band']} "
                 f"that no entry or generic term of the state captures, and {100 * src['repeat_share']:.0f} % of it "
-                f"repeats between runs of one reference (p = {src['p']:.2g}): a function of the reference (the input "
-                "history or a state signal the library lacks), not of time")
+                f"repeats between runs of one reference (p = {src['p']:.2g}"
+                + ("" if src.get("within_share") is None else
+                   f"; {100 * src['within_share']:.0f} % with each flight's own mean removed")
+                + "): a function of the reference (the input history or a state signal the library lacks), not of "
+                "time")
     if f.verdict == "unnamed":
         return f"unnamed on {', '.join(f.channels)} (generic terms {', '.join(f.params)})"
     src = (ev.get("source") or {}).get("source", "undecided")
