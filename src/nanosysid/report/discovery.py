@@ -472,8 +472,8 @@ def _flight_constant(result: DiscoveryResult, phys, figs: Path) -> list[str]:
             f"flight to the next (the figure): over the {len(fm['flights'])} training flights its standard deviation "
             "is " + " and ".join(f"{_fmt(b)} mN·m for {ch} (95 % {_fmt(lo)} … {_fmt(hi)})"
                                  for ch, b, lo, hi in zip(chs, before, low, high))
-            + f" with the nominal model, {_fmt(after[0])} and {_fmt(after[1])} with what was found. No function of "
-            "the state or of one flight's inputs can know such a constant")
+            + f" with the nominal model, {_fmt(after[0])} and {_fmt(after[1])} with what was found. A model that "
+            "starts each window from the state alone cannot know such a constant")
     if phys is not None:
         H = len(phys.mae["w"])
         turn = [1e-3 * b / result.vehicle.inertia[c - 3] * H * fm["dt"] for b, c in zip(before, cols)]
@@ -665,7 +665,8 @@ def headline(summary: dict[str, Any], report: str) -> list[str]:
         if fm and len(fm["flights"]) >= 3:
             s, low, high = (1e3 * v for v in spread(np.asarray(fm["before"])))
             L.append(f"- a constant of each flight: the training flights' mean roll and pitch torque residual moves by "
-                     + " and ".join(f"{_fmt(s[c])} mN·m (95 % {_fmt(low[c])} … {_fmt(high[c])})" for c in (3, 4))
+                     + " and ".join(f"{_fmt(s[c])} mN·m (95 % {_fmt(low[c])} … {_fmt(high[c])})"
+                                    for c in (CHANNELS.index("tau_x"), CHANNELS.index("tau_y")))
                      + f" from flight to flight (standard deviation over {len(fm['flights'])} flights).")
         else:
             L[-1] = L[-1][:-1] + "."
