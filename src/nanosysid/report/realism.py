@@ -12,6 +12,7 @@ import numpy as np
 
 from nanosysid.dataio import Flight
 from nanosysid.discover.fit import EDGE, measured_wrench, nominal_wrench
+from nanosysid.discover.stats import spread
 from nanosysid.effects import CHANNELS
 from nanosysid.report.stats import flight_stats
 from nanosysid.vehicle import Vehicle
@@ -64,8 +65,8 @@ def world_figures(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15,
                   ) -> dict[str, dict[str, float]]:
     """Per trajectory, each figure averaged over its runs (the nominal model's residual with
     ``vehicle``, the k_F and k_M its pipeline identified); under ``all``, the standard deviation
-    over the flights of each flight's mean residual: a constant of a flight (the centre of mass
-    moved as the battery is reseated) that no model of the state and the rotor speeds can know."""
+    over the flights of each flight's mean residual: a constant of a flight (where the vehicle
+    changes between flights) that a model starting from the state alone cannot know."""
     by: dict[str, list[dict[str, float]]] = {}
     means = []
     for f in flights:
@@ -74,8 +75,8 @@ def world_figures(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15,
         by.setdefault(f.trajectory, []).append(_flight(f, r, vehicle.gravity))
     out = {t: {k: float(np.mean([r[k] for r in runs])) for k in runs[0]} for t, runs in by.items()}
     if len(means) > 1:
-        spread = 1e3 * np.std(means, axis=0, ddof=1)
-        out["all"] = {f"{ch} residual, spread of the flights' means [{'mN' if c < 3 else 'mN·m'}]": float(spread[c])
+        s = 1e3 * spread(np.asarray(means))[0]
+        out["all"] = {f"{ch} residual, spread of the flights' means [{'mN' if c < 3 else 'mN·m'}]": float(s[c])
                       for c, ch in enumerate(CHANNELS)}
     return out
 
