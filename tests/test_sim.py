@@ -135,6 +135,19 @@ def test_melon_circling_rate_rises_as_the_rigs_reference_did():
     assert np.allclose(np.linalg.norm(v, axis=1), 0.75 * (1.5 + peaks / 60), rtol=1e-3)
 
 
+def test_melon_started_from_the_centre_holds_the_centre_until_it_jumps_onto_the_circle():
+    # the rig's Melon: a hover at the centre, then the setpoint on the circle's first point, the
+    # local (r, 0, 0) that the plane's turn about x leaves where it is: centre + (0.75, 0, 0)
+    centre = (0.0, 0.0, 1.25)
+    ref = make_reference("melon", center=centre, start_from_centre=True)
+    p, v, a = ref.pva(np.array([-5.0, -0.01, 0.0, 10.0]))
+    assert np.allclose(p[:2], centre) and np.allclose(v[:3], 0) and np.allclose(a[:3], 0)
+    assert np.allclose(p[2], [0.75, 0.0, 1.25])
+    # the same flight after t = 0, and without the option the hover is on the circle already
+    plain = make_reference("melon", center=centre)
+    assert np.array_equal(plain.pva(np.array([10.0]))[0], p[3:]) and np.allclose(plain.pva(np.array([-5.0]))[0], p[2])
+
+
 def test_chirp_reference():
     ref = make_reference("chirp")
     t, p, v, a = sample(ref)
@@ -255,14 +268,17 @@ def test_rotor_inertia_yaw_reaction_and_gyroscopic_torque():
 
 def test_random_effects_are_band_limited_with_their_stated_size_and_replay_from_the_seed():
     """One long realisation: each channel's std is the stated one (the sampling error of a 1 Hz
-    process over 2000 s is about 2 %), almost no power above five times each corner frequency,
-    the same for the same key and a prefix of a longer one, another for another flight."""
+    process over 2000 s is about 2 %, of a 0.4 Hz one about 3 %), almost no power above five
+    times each channel's corner frequency (a second-order low-pass at 1 Hz leaves about 4 % of
+    its power above 2 Hz: the roll torque's lower corner is checked), the same for the same key
+    and a prefix of a longer one, another for another flight."""
     world = fx.World({"turbulence": 1.0, "unsteady_thrust": 1.0})
     d = world.disturbance([0, 3, 1], 2000.0)
     stated = np.array([*fx.TURBULENCE_FORCE, *fx.TURBULENCE_TORQUE, *[fx.UNSTEADY_THRUST] * 4])
     assert np.allclose(d.std(axis=0), stated, rtol=0.08)
     freq = np.fft.rfftfreq(len(d), 1 / fx.REALISATION_RATE)
-    for channel, band in ((3, fx.TURBULENCE_BAND), (6, fx.UNSTEADY_THRUST_BAND)):
+    for channel, band in ((0, fx.TURBULENCE_BAND), (3, fx.TURBULENCE_TORQUE_BAND[0]), (5, fx.TURBULENCE_BAND),
+                          (6, fx.UNSTEADY_THRUST_BAND)):
         spectrum = np.abs(np.fft.rfft(d[:, channel] - d[:, channel].mean())) ** 2
         assert spectrum[freq > 5 * band].sum() < 0.01 * spectrum.sum()
     short = world.disturbance([0, 3, 1], 10.0)

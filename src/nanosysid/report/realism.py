@@ -112,23 +112,29 @@ WHY = {
              "geometric-mean ratio (0.02 to 0.044 rad/s), but the figure measured after the data chain's filter "
              "grows less than the setting, so the world stays below the rig; the rig's also differs from one "
              "trajectory to another (propeller vibration), the world's does not",
-    "spread": "the world's flights differ only in their random draws (the turbulence, the thrust fluctuation); "
+    "spread": "the world's flights differ only in their random draws (the turbulence, the thrust fluctuation): "
+              "its slow roll and pitch turbulence (0.4 Hz, the rig's band) leaves each flight a mean torque of "
+              "about 0.1 mN m, above the rig's roll figure and below its pitch one; "
               "the rig's mean pitch and yaw torques move together between groups of consecutive flights (the "
               "vehicle changed between them: its centre of mass moved by a few tenths of a millimetre when the "
               "battery was changed, most likely), and so do its mean forces, read from the accelerometer (a "
               "bias new at each power-up, most likely; the world's accelerometer has none). A world whose "
               "centre of mass moves from flight to flight by the rig's amount was flown: it matches the pitch "
-              "figure but leaves the learned models' angular-velocity ratios where they are and takes the "
-              "LSTM's position ratio out of the paper's band, so the world keeps one centre of mass",
+              "figure but leaves the learned models' angular-velocity ratios where they are, so the world keeps "
+              "one centre of mass",
     "residual": "the world's effects were sized so that the benchmark's table on the simulated world shows the "
-                "paper's pattern (reports/sim/stats.md), not fitted to the real residual",
-    "median frequency": "the world's time-varying effects have corners of 1 Hz (turbulence) and 3 Hz (thrust "
-                        "fluctuation), set so that the benchmark's table on the simulated world shows the paper's "
-                        "pattern, not fitted to the real residual's band",
+                "paper's pattern (reports/sim/stats.md), not fitted to the real residual; its roll and pitch "
+                "turbulence torque has one size for both axes, the rig's roll residual's (its pitch residual is "
+                "larger)",
+    "median frequency": "the world's time-varying effects have corners of 1 Hz (the turbulence's force and yaw "
+                        "torque), 0.4 Hz (its roll and pitch torque, at the rig's band) and 3 Hz (the thrust "
+                        "fluctuation); the rig's yaw torque residual sits higher, its force residual lower",
     "motor lag": "the world delays the recorded rotor speeds by its telemetry delay (30 ms); the rig's logs lag "
                  "by a few ms, as the sync stage measures them",
-    "motion": "the simulator flies the paper's trajectories as published with the firmware's default controller "
-              "gains; the rig's references and tuning are its own",
+    "motion": "the simulator flies the paper's Square, Random and Chirp as published and the rig's logged Melon, "
+              "with the firmware's default controller gains; the rig's references and tuning are its own (its "
+              "Melon leaves the centre at 3 m/s and brakes at the end within a second, the tilt and rates of "
+              "those two seconds setting its peaks; the world's controller leaves at 2 m/s)",
 }
 
 

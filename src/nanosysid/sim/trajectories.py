@@ -30,14 +30,19 @@ class Reference:
     duration: float
     pva_inside: Callable[[np.ndarray], PVA]
     yaw_inside: Callable[[np.ndarray], np.ndarray] | None = None
+    # the position (m) held before t = 0 (the hover the simulator starts from); None: the start's
+    hold_before: tuple[float, float, float] | None = None
 
     def yaw(self, t: np.ndarray) -> np.ndarray:
         t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
         return np.zeros(len(t)) if self.yaw_inside is None else self.yaw_inside(t)
 
     def pva(self, t: np.ndarray) -> PVA:
+        before = (np.asarray(t, dtype=np.float64) < 0.0)[:, None]
         t = np.clip(np.asarray(t, dtype=np.float64), 0.0, self.duration)
         p, v, a = self.pva_inside(t)
+        if self.hold_before is not None:
+            p = np.where(before, np.asarray(self.hold_before), p)
         # hold still outside the trajectory: zero velocity and acceleration setpoints
         outside = ((np.asarray(t) <= 0.0) | (np.asarray(t) >= self.duration))[:, None]
         return p, np.where(outside, 0.0, v), np.where(outside, 0.0, a)
@@ -122,12 +127,14 @@ def random_points(*, n_points: int = 52, duration: float = 60.0, box: tuple[floa
 def melon(*, radius: float = 0.75, omega_circle: float = 2.5, omega_plane: float = 0.4,
           center: tuple[float, float, float] = (0.0, 0.0, 1.5), duration: float = 65.0,
           circle_time: float = 55.0, ramp_time: float = 1.0, return_time: float = 4.0,
-          omega_start: float | None = None) -> Reference:
+          omega_start: float | None = None, start_from_centre: bool = False) -> Reference:
     """Circles of ``radius`` m in a local x-z plane, the plane turning about the world x axis at
     ``omega_plane`` rad/s, for ``circle_time`` s; then a minimum-jerk return to the centre over
     ``return_time`` s, and hover there until ``duration``. The circling rate rises linearly from
     ``omega_start`` rad/s at the start to ``omega_circle`` at ``circle_time`` (None: constant at
     ``omega_circle``), and the whole of it is ramped in linearly over the first ``ramp_time`` s.
+    With ``start_from_centre`` the vehicle hovers at the centre before the start and the setpoint
+    jumps onto the circle at t = 0 (the rig's logged Melon); otherwise it starts on the circle.
     """
     c = np.asarray(center)
     if circle_time + return_time > duration:
@@ -167,7 +174,7 @@ def melon(*, radius: float = 0.75, omega_circle: float = 2.5, omega_plane: float
             p[back], v[back], a[back] = back_pva(np.minimum(t[back] - circle_time, return_time))
         return p + c, v, a
 
-    return Reference("melon", duration, pva)
+    return Reference("melon", duration, pva, hold_before=tuple(c) if start_from_centre else None)
 
 
 def chirp(*, amplitude: float = 0.5, f_start: float = 0.1, f_end: float = 0.5, duration: float = 60.0,

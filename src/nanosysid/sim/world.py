@@ -55,8 +55,11 @@ INERTIA_OFFSET = (0.15, 0.15, 0.25)
 # residual networks cannot learn; its size is set so that the physics row matches the paper's
 # (reports/sim/stats.md), a few per cent of the hover thrust and of the rotors' roll/pitch authority
 TURBULENCE_FORCE = (5.0e-3, 5.0e-3, 6.0e-3)  # N, std per body axis
-TURBULENCE_TORQUE = (2.5e-4, 2.5e-4, 0.4e-4)  # N m, std per body axis
-TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass
+TURBULENCE_TORQUE = (5.0e-4, 5.0e-4, 0.4e-4)  # N m, std per body axis
+TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass of the force and the yaw torque
+# Hz, the roll and pitch torque's corner: the rig's torque residual sits at 0.3-0.4 Hz (its median
+# frequency, reports/rig/world.md), where the attitude loop cancels it through the rotor speeds
+TURBULENCE_TORQUE_BAND = (0.4, 0.4, TURBULENCE_BAND)
 # The paper's "unmodelled actuation": the thrust a rotor gives at a measured speed is not a fixed
 # k_F Omega^2; the controller answers the fluctuation with the rotor speeds, so the measured speeds
 # tell less of the torque than the quadratic model says. Its size, like the turbulence's, is set
@@ -123,13 +126,13 @@ class Realisation:
 
     Attributes:
         scale: Standard deviation of each channel at strength 1.0.
-        band: Corner (Hz) of the second-order low-pass.
+        band: Corner (Hz) of the second-order low-pass, one for all channels or one per channel.
         stream: Index of its random stream within the flight's key (each effect its own).
         apply: ``(channels (..., k), omega (..., 4), mixer_t (4, 4)) -> wrench (..., 6)``.
     """
 
     scale: tuple[float, ...]
-    band: float
+    band: float | tuple[float, ...]
     stream: int
     apply: Callable[[Tensor, Tensor, Tensor], Tensor]
 
@@ -315,9 +318,11 @@ RECORDS: tuple[WorldEffect, ...] = (
         "turbulence", "a slow random force and torque: the vehicle's downwash recirculating in the arena",
         f"band-limited random body force and torque (downwash recirculating in the arena): std "
         f"({_mm(TURBULENCE_FORCE)}) mN and ({', '.join(f'{x:g}' for x in TURBULENCE_TORQUE)}) N m, "
-        f"low-pass {TURBULENCE_BAND:g} Hz; a new realisation every flight",
+        f"low-pass {TURBULENCE_BAND:g} Hz (roll and pitch torque {TURBULENCE_TORQUE_BAND[0]:g} Hz); a new realisation "
+        "every flight",
         "time: a new random realisation every flight", default=1.0,
-        realisation=Realisation((*TURBULENCE_FORCE, *TURBULENCE_TORQUE), TURBULENCE_BAND, 1,
+        realisation=Realisation((*TURBULENCE_FORCE, *TURBULENCE_TORQUE), (TURBULENCE_BAND,) * 3 + TURBULENCE_TORQUE_BAND,
+                                1,
                                 lambda d, omega, mixer_t: d)),
     WorldEffect(
         "unsteady_thrust", "each rotor's thrust and drag torque fluctuate around `k Ω²`, and the controller answers "
@@ -447,7 +452,13 @@ class World:
             if self.s(e.name):
                 r = e.realisation
                 scale = self.s(e.name) * np.array(r.scale)
-                out[:, cols] = _unit_band_noise([*key, r.stream], t_end, len(r.scale), r.band) * scale
+                bands = np.broadcast_to(np.asarray(r.band, dtype=float), scale.shape)
+                for b in np.unique(bands):
+                    # one white noise per stream, filtered once per band: a channel's draw is the
+                    # same whatever the other channels' bands
+                    idx = np.arange(cols.start, cols.stop)[bands == b]
+                    noise = _unit_band_noise([*key, r.stream], t_end, len(r.scale), float(b))
+                    out[:, idx] = noise[:, bands == b] * scale[bands == b]
         return out
 
     def wrench(self, x: Tensor, omega: Tensor, omega_dot: Tensor, vehicle: Vehicle) -> tuple[Tensor, Tensor]:
