@@ -30,7 +30,7 @@ class Reference:
     duration: float
     pva_inside: Callable[[np.ndarray], PVA]
     yaw_inside: Callable[[np.ndarray], np.ndarray] | None = None
-    # the position (m) held before t = 0 (the hover the simulator starts from); None: the start's
+    # the position (m) held before t = 0 (the hover the simulator starts from); None: p(0)
     hold_before: tuple[float, float, float] | None = None
 
     def yaw(self, t: np.ndarray) -> np.ndarray:

@@ -52,13 +52,14 @@ ROTOR_INERTIA = 3.9e-8  # kg m^2, drone-models' cf21B propeller value
 # fit is (2.5, 2.8, 4.9) e-5 and GRAFE's (3.3, 3.6, 5.9) e-5 for the same airframe class
 INERTIA_OFFSET = (0.15, 0.15, 0.25)
 # Band-limited disturbance: the paper's unexplained slow roll/pitch torque and the force that the
-# residual networks cannot learn; its size is set so that the physics row matches the paper's
-# (reports/sim/stats.md), a few per cent of the hover thrust and of the rotors' roll/pitch authority
+# residual networks cannot learn; the force's size is set so that the physics row matches the
+# paper's (reports/sim/stats.md), a few per cent of the hover thrust; the roll and pitch torque's
+# size and band are the rig's roll torque residual's (reports/rig/world.md)
 TURBULENCE_FORCE = (5.0e-3, 5.0e-3, 6.0e-3)  # N, std per body axis
 TURBULENCE_TORQUE = (5.0e-4, 5.0e-4, 0.4e-4)  # N m, std per body axis
 TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass of the force and the yaw torque
 # Hz, the roll and pitch torque's corner: the rig's torque residual sits at 0.3-0.4 Hz (its median
-# frequency, reports/rig/world.md), where the attitude loop cancels it through the rotor speeds
+# frequency), where the attitude loop cancels it through the rotor speeds
 TURBULENCE_TORQUE_BAND = (0.4, 0.4, TURBULENCE_BAND)
 # The paper's "unmodelled actuation": the thrust a rotor gives at a measured speed is not a fixed
 # k_F Omega^2; the controller answers the fluctuation with the rotor speeds, so the measured speeds
