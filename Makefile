@@ -60,7 +60,7 @@ toolchain-check:
 	\`make toolchain\` (as root) or export.mcu.enabled=false"
 
 # two workers, one test file each at a time: a file's module fixtures (the tiny pipeline, the DVC
-# repositories) are built once, and the two DVC files start at once, beside each other. A third
+# repository) are built once, and the two longest files start at once, beside each other. A third
 # worker costs more CPU than it fills idle time (fresh clone: 1,112 s against 955 s with two)
 TEST_WORKERS ?= 2
 test: $(STAMP) toolchain-check

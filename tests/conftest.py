@@ -18,8 +18,8 @@ torch.set_num_threads(2 if os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") == "
 
 
 # the longest files first: `make test`'s workers take a file each at a time in this order, so the
-# DVC tests (the longest files) start at once instead of ending the run alone
-FIRST = ("test_dvc.py", "test_dvc_own.py", "test_pipeline.py")
+# DVC tests (the longest file) start at once instead of ending the run alone
+FIRST = ("test_dvc.py", "test_pipeline.py")
 
 
 def pytest_collection_modifyitems(items):

@@ -1,5 +1,7 @@
-"""The pipeline as DVC runs it: only what changed reruns, queued experiments share the run cache,
-outputs and the run cache travel through a remote (a user's own flights: test_dvc_own.py)."""
+"""The pipeline as DVC runs it: outputs and the run cache travel through a remote, only what changed
+reruns, queued experiments share the run cache, and a user's own flights run through one experiment
+without the stages that need the simulator's truth. One repository for all three (its base run is
+the file's cost), the tests in that order."""
 
 import shlex
 import shutil
@@ -92,6 +94,24 @@ EXPERIMENTS = {
 
 
 @pytest.mark.slow
+def test_outputs_and_run_cache_round_trip_through_a_remote(dvc_repo, tmp_path):
+    sh = dvc_repo.sh
+    remote = tmp_path / "remote"
+    sh("dvc", "remote", "add", "-d", "store", str(remote))
+    dvc_repo.commit("results")
+    sh("dvc", "push", "--run-cache")
+    clone = tmp_path / "clone"
+    sh("git", "clone", "-q", str(dvc_repo.root), str(clone))
+    sh("dvc", "pull", "--run-cache", cwd=clone)
+    status = sh("dvc", "status", cwd=clone)
+    assert "up to date" in status, status
+    out = sh("dvc", "repro", cwd=clone)
+    assert "Running stage" not in out, out
+    assert (clone / "reports" / "campaign" / "summary.json").read_bytes() == \
+        (dvc_repo.root / "reports" / "campaign" / "summary.json").read_bytes()
+
+
+@pytest.mark.slow
 def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_repo):
     sh = dvc_repo.sh
     # the README's sweep queues one experiment per value (left unrun here: three LSTM trainings)
@@ -125,8 +145,10 @@ def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_
         assert log.count("Running stage") == len(reruns), log
     # the queued run's results come back to the workspace (which holds the base's) from the shared
     # run cache, not recomputed; and the launcher is no parameter of the campaign: its results are
-    # the same wherever it runs (a campaign that read it would run again here)
-    out = sh("dvc", "exp", "run", *SMALL, "-S", EXPERIMENTS["substeps"][0], "-S", "launcher=slurm")
+    # the same wherever it runs (a campaign that read it would run again here). The two stages and
+    # those upstream of them: the others are as the base left them
+    out = sh("dvc", "exp", "run", *SMALL, "-S", EXPERIMENTS["substeps"][0], "-S", "launcher=slurm",
+             "evaluate@physics", "campaign@sim")
     assert "Stage 'evaluate@physics' is cached - skipping run" in out and "Running stage" not in out, out
     # the README's comparison of experiments: one quantity's SimErr per model, a column each
     line = next(x for x in (ROOT / "README.md").read_text().splitlines() if x.startswith("dvc exp show "))
@@ -139,18 +161,43 @@ def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_
 
 
 @pytest.mark.slow
-def test_outputs_and_run_cache_round_trip_through_a_remote(dvc_repo, tmp_path):
-    sh = dvc_repo.sh
-    remote = tmp_path / "remote"
-    sh("dvc", "remote", "add", "-d", "store", str(remote))
-    dvc_repo.commit("results")
-    sh("dvc", "push", "--run-cache")
-    clone = tmp_path / "clone"
-    sh("git", "clone", "-q", str(dvc_repo.root), str(clone))
-    sh("dvc", "pull", "--run-cache", cwd=clone)
-    status = sh("dvc", "status", cwd=clone)
-    assert "up to date" in status, status
-    out = sh("dvc", "repro", cwd=clone)
-    assert "Running stage" not in out, out
-    assert (clone / "reports" / "campaign" / "summary.json").read_bytes() == \
-        (dvc_repo.root / "reports" / "campaign" / "summary.json").read_bytes()
+def test_a_users_own_flights_run_through_one_experiment_without_the_simulators_stages(dvc_repo):
+    # the base run's filtered flights brought as a user's: two flights of each of two trajectories
+    # of the user's own names, in the published schema, named by the README's manifest, and the
+    # yaw calibration flight k_M is identified on (3 s flights excite yaw too little). The
+    # simulator's stages have run: a user's experiment must not run them again
+    from test_config import readme_blocks
+
+    own = dvc_repo.root / "own"
+    own.mkdir()
+    manifest = next(b for b in readme_blocks("## Your own flights") if b.startswith("file,"))
+    rows = [line.split(",") for line in manifest.splitlines()[1:]]
+    assert [(t, r) for _, t, r in rows] == [("loop", "1"), ("loop", "2"), ("spiral", "1"), ("spiral", "2")]
+    for (file, _, _), (src, k) in zip(rows, (("chirp", 1), ("chirp", 2), ("melon", 1), ("melon", 2))):
+        (flight,) = (dvc_repo.root / "processed" / "flights").glob(f"{src}_*_run{k}.csv")
+        (own / file).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copy(flight, own / file)
+    (yaw,) = (dvc_repo.root / "processed" / "flights").glob("yawsweep_*_run1.csv")
+    shutil.copy(yaw, own / "yaw.csv")
+    (own / "manifest.csv").write_text(manifest + "yaw.csv,yawsweep,1\n")
+    # without the microcontroller (export.mcu.enabled=false), as a user without the ARM toolchain
+    # runs it; one epoch, and discovery without its leave-one-flight-out folds, to keep it short
+    quick = [a for m in ("residual", "phys_res", "lstm") for a in ("-S", f"models.{m}.train.epochs=1")]
+    out = dvc_repo.sh("dvc", "exp", "run", *SMALL, *quick, "-S", "discover.flights_out=false", "-S", "discover.sindy=false",
+                      "-S", "data=csv", "-S", "data.flights_dir=own", "-S", "split.train=[loop,figure8]",
+                      "-S", "split.test=[spiral]", "-S", "export.mcu.enabled=false", "-n", "own")
+    ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
+    assert {"split", "identify", "train@lstm", "evaluate@lstm", "discover", "report"} <= ran, ran
+    # the stages that check against the simulator's truth, and the oracle, are no part of it
+    assert not ran & {"simulate", "extract", "quality@sim", "compare@sim", "campaign@sim", "evaluate@oracle"}, ran
+    stages = dvc_repo.sh("dvc", "stage", "list", "--name-only").split()
+    assert "evaluate@oracle" not in stages and not [s for s in stages if s.endswith("@sim")], stages
+    split = yaml.safe_load((dvc_repo.root / "processed" / "split" / "split.json").read_text())
+    assert sorted(split["test"]["flights"]) == ["spiral_own_run1", "spiral_own_run2"], split
+    assert sorted(split["train"]["flights"]) == ["loop_own_run1", "loop_own_run2"], split
+    rows = [line.split("|")[1].strip() for line in
+            (dvc_repo.root / "reports" / "benchmark.md").read_text().split("## ")[1].splitlines() if line.startswith("| ")]
+    assert {"physics", "residual", "phys_res", "lstm", "discovered"} <= set(rows) and not [r for r in rows
+                                                                                       if r.startswith("oracle")]
+    dvc_repo.sh("git", "checkout", "--", "params.yaml")
+    shutil.rmtree(own)

@@ -300,7 +300,7 @@ RUN_BY = {
     "make bench": "tests/test_readme.py::test_the_readmes_bench_command_names_benchmarks_that_exist",
     ".venv/bin/rerun ": "tests/test_readme.py::test_the_readmes_recording_command_names_a_recording_visualize_writes"
                         "_and_the_viewer_it_installs",
-    "dvc exp run -S data=csv": "tests/test_dvc_own.py::test_a_users_own_flights_run_through_one_experiment_without_the"
+    "dvc exp run -S data=csv": "tests/test_dvc.py::test_a_users_own_flights_run_through_one_experiment_without_the"
                                "_simulators_stages",
     "dvc exp run -S models.physics.substeps=4": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed"
                                                 "_and_share_the_run_cache",
