@@ -24,8 +24,7 @@ def run_stages(root: Path, env: dict) -> subprocess.Popen:
         "from stages.common import run_stage",
         f"for stage, name in {STAGES!r}:",
         "    main = importlib.import_module(f'stages.{stage}').main",
-        # the compiled simulator: its C++ is built for the pinned instruction set, whatever the caller asked
-        f"    argv = ([name] if name else []) + {tiny_args(root, 'sim.flight.compile=true')!r}",
+        f"    argv = ([name] if name else []) + {tiny_args(root)!r}",
         "    if run_stage(main, description='', name_arg='model' if name else None, argv=argv):",
         "        sys.exit(f'stage {stage} failed')",
     ])

@@ -33,10 +33,6 @@ TINY_SIM = [
     "export.mcu.steps=20",
     "discover.block=0.4",
     "visualize.stride=40",
-    # the eager simulator (and oracle): on 3 s flights building the compiled step costs more than it
-    # saves (37 s against 13 s with inductor's cache empty); the compiled one flies the eager one's
-    # flights (tests/test_sim.py), and tests/test_numerics.py runs it through the stages
-    "sim.flight.compile=false",
 ] + [f"models.{m}.train.{k}" for m in ("residual", "phys_res", "lstm")
      # the eager physics base: compiling it costs more than two epochs of it (the compiled one is
      # checked against it in tests/test_learned.py)
