@@ -457,9 +457,9 @@ class World:
                 for b in np.unique(bands):
                     # one white noise per stream, filtered once per band: a channel's draw is the
                     # same whatever the other channels' bands
-                    idx = np.arange(cols.start, cols.stop)[bands == b]
+                    here = bands == b
                     noise = _unit_band_noise([*key, r.stream], t_end, len(r.scale), float(b))
-                    out[:, idx] = noise[:, bands == b] * scale[bands == b]
+                    out[:, np.arange(cols.start, cols.stop)[here]] = noise[:, here] * scale[here]
         return out
 
     def wrench(self, x: Tensor, omega: Tensor, omega_dot: Tensor, vehicle: Vehicle) -> tuple[Tensor, Tensor]:
