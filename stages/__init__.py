@@ -2,5 +2,5 @@
 
 from nanosysid import numerics
 
-# before torch and numpy are loaded: the same bytes on every x86 machine of the pinned level
+# before torch and numpy are loaded: the same bytes on every x86 machine
 numerics.pin()

@@ -40,9 +40,8 @@ def digests(root: Path) -> dict[str, str]:
 @pytest.mark.slow
 def test_simulate_sync_and_train_give_the_same_bytes_under_other_cpu_settings(tmp_path, venv_env):
     variants = {
-        # a caller asking for torch's portable kernels, MKL's and OpenBLAS's SSE4 code, one thread
-        "a": {"ATEN_CPU_CAPABILITY": "default", "MKL_ENABLE_INSTRUCTIONS": "SSE4_2", "OPENBLAS_CORETYPE": "Nehalem",
-              "OMP_NUM_THREADS": "1"},
+        # a caller whose torch would pick AVX2 kernels, MKL limited to AVX2, one thread
+        "a": {"ATEN_CPU_CAPABILITY": "avx2", "MKL_ENABLE_INSTRUCTIONS": "AVX2", "OMP_NUM_THREADS": "1"},
         # the machine's own best kernels, AVX-512 where it has them, numpy's SIMD loops, more threads
         "b": {"ATEN_CPU_CAPABILITY": "avx512", "MKL_ENABLE_INSTRUCTIONS": "AVX512", "OMP_NUM_THREADS": "4",
               "NPY_DISABLE_CPU_FEATURES": "", "OPENBLAS_CORETYPE": "Haswell", "TORCHINDUCTOR_CPP_MARCH": "native"},
@@ -60,55 +59,11 @@ def test_simulate_sync_and_train_give_the_same_bytes_under_other_cpu_settings(tm
     assert a == b, sorted(f for f in a if a[f] != b.get(f))
 
 
-def _has_avx2() -> bool:
-    """Whether this CPU runs AVX2 and FMA, as the kernel reports its flags."""
-    try:
-        flags = next(line for line in Path("/proc/cpuinfo").read_text().splitlines() if line.startswith("flags")).split()
-    except (OSError, StopIteration):
-        return False
-    return "avx2" in flags and "fma" in flags
-
-
-@pytest.mark.parametrize("level, asked", [(None, "default"), ("v2", "avx2")])
-def test_a_stage_runs_the_pinned_kernels_whatever_the_caller_asked(venv_env, level, asked):
+def test_a_stage_runs_the_portable_kernels_whatever_the_caller_asked(venv_env):
     code = "import stages, torch; print(torch.backends.cpu.get_cpu_capability(), torch.get_num_threads())"
-    env = {**venv_env, "ATEN_CPU_CAPABILITY": asked, "OMP_NUM_THREADS": "7"}
-    env.pop("NANOSYSID_CPU_LEVEL", None)
-    if level:
-        env["NANOSYSID_CPU_LEVEL"] = level
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
-                         env=env).stdout.split()
-    # AVX2 where the CPU has it, unless the level asks for the portable kernels everywhere
-    assert out == ["AVX2" if level is None and _has_avx2() else "DEFAULT", os.environ.get("NANOSYSID_THREADS", "2")]
-
-
-# the instruction-set flags /proc/cpuinfo lists for two real CPUs (the SIMD and bit-manipulation
-# ones): a Sandy Bridge Xeon (AVX, no AVX2: x86-64-v2) and a Haswell one (x86-64-v3)
-SANDY_BRIDGE = frozenset("fpu sse sse2 ssse3 cx16 sse4_1 sse4_2 popcnt aes xsave avx pclmulqdq lahf_lm".split())
-HASWELL = SANDY_BRIDGE | frozenset("fma movbe f16c abm avx2 bmi1 bmi2 erms invpcid".split())
-
-
-def test_the_pinned_level_follows_the_cpu_and_the_users_choice():
-    from nanosysid.numerics import cpu_flags, pinned_environment
-
-    assert pinned_environment("x86_64", HASWELL, "")["ATEN_CPU_CAPABILITY"] == "avx2"
-    assert pinned_environment("x86_64", HASWELL, "")["TORCHINDUCTOR_CPP_MARCH"] == "x86-64-v3"
-    # a CPU without AVX2, no flags (an unreadable /proc/cpuinfo), or the user's v2: the code
-    # every x86-64-v2 CPU runs
-    assert cpu_flags("/nonexistent/cpuinfo") is None
-    for flags, level in ((SANDY_BRIDGE, ""), (frozenset(), "auto"), (HASWELL, "v2")):
-        env = pinned_environment("x86_64", flags, level)
-        assert (env["ATEN_CPU_CAPABILITY"], env["TORCHINDUCTOR_CPP_MARCH"], env["OPENBLAS_CORETYPE"]) == \
-            ("default", "x86-64-v2", "Nehalem"), (flags, level)
-    # another architecture: no x86 switch at all
-    assert not {"MKL_CBWR", "OPENBLAS_CORETYPE", "TORCHINDUCTOR_CPP_MARCH"} & set(pinned_environment("aarch64", None, ""))
-
-
-def test_an_unknown_cpu_level_is_one_line_naming_the_variable(venv_env):
-    r = subprocess.run([sys.executable, "-m", "stages.split", "--help"], cwd=ROOT, capture_output=True, text=True,
-                       env={**venv_env, "NANOSYSID_CPU_LEVEL": "v4"})
-    assert r.returncode != 0 and "Traceback" not in r.stderr, r.stderr
-    assert r.stderr.strip().splitlines() == [r.stderr.strip()] and "NANOSYSID_CPU_LEVEL=v4" in r.stderr, r.stderr
+                         env={**venv_env, "ATEN_CPU_CAPABILITY": "avx2", "OMP_NUM_THREADS": "7"}).stdout.split()
+    assert out == ["DEFAULT", os.environ.get("NANOSYSID_THREADS", "2")]
 
 
 def test_the_simulators_loop_runs_on_one_thread_with_the_bytes_of_two_and_gives_the_count_back(monkeypatch):

@@ -338,7 +338,7 @@ def _advance(x: torch.Tensor, cmd: torch.Tensor, ctl: torch.Tensor, p_ref: torch
 @functools.cache
 def _compiled_advance():
     # the step's few hundred tensor operations fused into a handful of C++ loops, the same bytes
-    # on every x86 machine of the pinned level whatever the batch (numerics.compiled)
+    # on every x86 machine whatever the batch (numerics.compiled)
     return compiled(_advance, setting="sim.flight.compile")
 
 
