@@ -2,5 +2,5 @@
 
 from nanosysid import numerics
 
-# before torch and numpy are loaded: the same bytes on every x86 machine
-numerics.pin()
+# before torch and numpy are loaded: the same bytes on every x86 machine (of the stage's level)
+numerics.pin(numerics.stage_level())

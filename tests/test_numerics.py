@@ -9,24 +9,28 @@ from pathlib import Path
 
 import pytest
 
+from nanosysid import numerics
 from test_pipeline import TINY_SIM, tiny_args  # noqa: F401  (TINY_SIM is part of tiny_args)
 
 ROOT = Path(__file__).resolve().parents[1]
-STAGES = [("simulate", None), ("extract", None), ("sync", None), ("filter", None), ("split", None),
-          ("train", "residual")]
+STAGES = [("simulate", None), ("extract", None), ("sync", None), ("filter", None), ("split", None)]
 
 
 def run_stages(root: Path, env: dict) -> subprocess.Popen:
     """The stages one after another in one process started with ``env`` (a stage pins the code
-    paths where its package is first imported, as each of DVC's stage processes does)."""
+    paths where its package is first imported, as each of DVC's stage processes does), then the
+    residual model's training as DVC runs it, ``python -m stages.train`` (at its own level)."""
     script = "\n".join([
-        "import importlib, sys",
+        "import importlib, os, subprocess, sys",
+        "caller = dict(os.environ)  # before a stage's pin changes it",
         "from stages.common import run_stage",
         f"for stage, name in {STAGES!r}:",
         "    main = importlib.import_module(f'stages.{stage}').main",
         f"    argv = ([name] if name else []) + {tiny_args(root)!r}",
         "    if run_stage(main, description='', name_arg='model' if name else None, argv=argv):",
         "        sys.exit(f'stage {stage} failed')",
+        f"train = [sys.executable, '-m', 'stages.train', 'residual', *{tiny_args(root)!r}]",
+        "sys.exit(subprocess.run(train, env=caller).returncode)",
     ])
     return subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.PIPE, text=True)
@@ -64,6 +68,43 @@ def test_a_stage_runs_the_portable_kernels_whatever_the_caller_asked(venv_env):
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
                          env={**venv_env, "ATEN_CPU_CAPABILITY": "avx2", "OMP_NUM_THREADS": "7"}).stdout.split()
     assert out == ["DEFAULT", os.environ.get("NANOSYSID_THREADS", "2")]
+
+
+@pytest.mark.parametrize("argv, level", [
+    (["python", "-m", "stages.train", "lstm", "--params", "params-rig.yaml"], "v3"),
+    (["python", "-X", "dev", "-mstages.train", "phys_res"], "v3"),
+    (["python", "-m", "stages.evaluate", "lstm"], "v2"),
+    (["python", "-m", "nanosysid.repro", "--jobs", "2"], "v2"),
+    (["python", "-m", "pytest", "-m", "stages.train"], "v2"),  # pytest's marker option, not the interpreter's
+    (["python", "-c", "import stages", "-m", "stages.train"], "v2"),
+    (["python", "script.py", "-m", "stages.train"], "v2"),
+])
+def test_only_the_train_stage_runs_at_the_avx2_level(argv, level):
+    assert numerics.stage_level(argv) == level
+
+
+def test_the_avx2_level_falls_back_to_the_portable_one_where_the_cpu_or_the_user_says_so(monkeypatch):
+    monkeypatch.delenv("NANOSYSID_CPU_LEVEL", raising=False)
+    v3 = frozenset({"sse4_2", "avx", "avx2", "bmi1", "bmi2", "f16c", "fma", "abm", "movbe"})
+    assert numerics.pinned_environment("v3", machine="x86_64", flags=v3)["ATEN_CPU_CAPABILITY"] == "avx2"
+    # a Sandy Bridge: AVX without AVX2, FMA or BMI
+    assert numerics.pinned_environment("v3", machine="x86_64", flags=frozenset({"sse4_2", "avx"})) == numerics.PINNED
+    assert numerics.pinned_environment("v2", machine="x86_64", flags=v3) == numerics.PINNED
+    monkeypatch.setenv("NANOSYSID_CPU_LEVEL", "v2")
+    assert numerics.pinned_environment("v3", machine="x86_64", flags=v3) == numerics.PINNED
+    monkeypatch.setenv("NANOSYSID_CPU_LEVEL", "v4")
+    with pytest.raises(ValueError, match="NANOSYSID_CPU_LEVEL=v4"):
+        numerics.pinned_environment("v3", machine="x86_64", flags=v3)
+
+
+@pytest.mark.skipif(not numerics.V3_FLAGS <= (numerics.cpu_flags() or frozenset()), reason="no AVX2 on this CPU")
+def test_the_avx2_level_runs_torchs_avx2_kernels_and_one_mkl_path_whatever_the_caller_asked(venv_env):
+    code = ("from nanosysid import numerics; numerics.pin('v3'); import torch; "
+            "print(torch.backends.cpu.get_cpu_capability(), torch.get_num_threads())")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True,
+                         env={**venv_env, "ATEN_CPU_CAPABILITY": "avx512", "MKL_ENABLE_INSTRUCTIONS": "SSE4_2",
+                              "OMP_NUM_THREADS": "7"}).stdout.split()
+    assert out == ["AVX2", os.environ.get("NANOSYSID_THREADS", "2")]
 
 
 def test_the_simulators_loop_runs_on_one_thread_with_the_bytes_of_two_and_gives_the_count_back(monkeypatch):

@@ -1,0 +1,72 @@
+"""Training of the three learned models with their own settings (`models.<name>.train`) at the
+two pinned code-path levels (`nanosysid.numerics`): the AVX2 one ("v3"), which the train stage
+takes on a CPU that has it, against the x86-64-v2 one that every other stage runs ("v2", and the
+train stage's under `NANOSYSID_CPU_LEVEL=v2`), each level in a process of its own, in the same
+run: seconds per epoch (an epoch's time once compiled: three epochs less one, halved)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+MODELS = ("residual", "phys_res", "lstm")
+ROOT = Path(__file__).resolve().parents[1]
+
+# one level's fits, in a process that pins its code paths before torch is loaded, as a stage does
+CHILD = """
+import sys
+from nanosysid import numerics
+numerics.pin(sys.argv[1])
+import json, tempfile, time
+from pathlib import Path
+from omegaconf import OmegaConf
+from nanosysid import protocol
+from nanosysid.config import load_params
+from nanosysid.models.training import network_spec, optimiser_parts, physics_base, train_model
+
+cfg = load_params()
+out = {"capability": __import__("torch").backends.cpu.get_cpu_capability()}
+with tempfile.TemporaryDirectory() as tmp:
+    for name in sys.argv[2:]:
+        m = OmegaConf.to_container(cfg.models[name], resolve=True)
+        t = m["train"]
+        bench = protocol.load(cfg.paths.split, horizon=int(t["horizon"]))
+        took = []
+        for epochs in (1, 3):
+            optimizer, scheduler = optimiser_parts(t["optimizer"], t["scheduler"])
+            start = time.perf_counter()
+            train_model(network_spec(m), bench.train, Path(tmp) / f"{name}.pt", physics=physics_base(m),
+                        optimizer=optimizer, scheduler=scheduler, horizon=int(t["horizon"]), stride=int(t["stride"]),
+                        batch_size=int(t["batch_size"]), epochs=epochs, patience=epochs, seed=int(t["seed"]),
+                        val_runs=t["val_runs"], accelerator="cpu", devices=1, compile=bool(t["compile"]),
+                        threads=int(t["threads"]), progress=False)
+            took.append(time.perf_counter() - start)
+        out[name] = (took[1] - took[0]) / 2
+print(json.dumps(out))
+"""
+
+
+def _level(level: str) -> dict:
+    env = {k: v for k, v in os.environ.items() if k != "NANOSYSID_CPU_LEVEL"}
+    r = subprocess.run([sys.executable, "-c", CHILD, level, *MODELS], cwd=ROOT, env=env, capture_output=True, text=True)
+    if r.returncode:
+        raise SystemExit(f"pinned_level: the fits at level {level} failed:\n{r.stderr[-2000:]}")
+    return json.loads(r.stdout.strip().splitlines()[-1])
+
+
+def main() -> dict[str, float]:
+    auto, v2 = _level("v3"), _level("v2")
+    figures = {}
+    for name in MODELS:
+        print(f"{name:9s} {auto['capability']}: {auto[name]:.2f} s/epoch;  x86-64-v2 ({v2['capability']}): "
+              f"{v2[name]:.2f} s/epoch ({v2[name] / auto[name]:.2f}x)")
+        figures.update({f"{name}_s": auto[name], f"{name}_v2_s": v2[name], f"{name}_v2_over_pinned": v2[name] / auto[name]})
+    figures["pinned"] = auto["capability"]
+    return figures
+
+
+if __name__ == "__main__":
+    main()
