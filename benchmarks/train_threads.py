@@ -1,7 +1,8 @@
 """Training of the three learned models on the pipeline's training flights with their own settings
 (`models.<name>.train`), on one torch thread (the product's `train.threads`) against two (the
 pinned count of the rest of the pipeline), a few epochs each, in the same run: seconds and CPU
-seconds per epoch."""
+seconds per epoch, at the x86-64-v2 level (`benchmarks/pinned_level.py` compares it with the train
+stage's AVX2 one)."""
 
 from __future__ import annotations
 
