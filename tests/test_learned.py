@@ -1,12 +1,15 @@
 """Learned models: shapes, the zero-initialised residual, training, determinism, checkpoints."""
 
 import functools
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
 
-from nanosysid import predictors, protocol, so3, synthetic
+from nanosysid import numerics, predictors, protocol, so3, synthetic
 from nanosysid.models.learned import (LearnedPredictor, build_model, content_hash, from_tilde, load_checkpoint,
                                       save_checkpoint, to_tilde)
 from nanosysid.models.physics import PhysicsStep
@@ -94,6 +97,25 @@ def test_the_compiled_physics_base_is_the_eager_one_to_rounding_at_any_batch(fli
     # the graph training runs (inputs that take a gradient), at other places in its vectorised loops
     alone, among = yt[3:6].clone().requires_grad_(True), yt[:6].clone().requires_grad_(True)
     assert torch.equal(model._compiled_base(alone, uk[3:6]), model._compiled_base(among, uk[:6])[3:6])
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not numerics.V3_FLAGS <= (numerics.cpu_flags() or frozenset()), reason="no AVX2 on this CPU")
+def test_the_compiled_physics_base_keeps_its_bounds_at_the_train_stages_level(venv_env):
+    """The test above in a process pinned as the train stage pins itself (AVX2 vector code)."""
+    code = "\n".join([
+        "from nanosysid import numerics",
+        "numerics.pin(numerics.STAGE_LEVELS['stages.train'])",
+        "import torch",
+        "assert torch.backends.cpu.get_cpu_capability() == 'AVX2'",
+        "import test_learned as t",
+        "from nanosysid import synthetic",
+        "flights = synthetic.synthetic_flights([f'chirp_x_run{k}' for k in (1, 2, 3)], 400, noise=1e-3, seed=4)",
+        "t.test_the_compiled_physics_base_is_the_eager_one_to_rounding_at_any_batch(flights)",
+    ])
+    r = subprocess.run([sys.executable, "-c", code], cwd=Path(__file__).parent, env=venv_env, capture_output=True,
+                       text=True)
+    assert r.returncode == 0, r.stderr[-3000:]
 
 
 def test_representation_round_trip(flights):
