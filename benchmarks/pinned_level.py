@@ -21,30 +21,19 @@ CHILD = """
 import sys
 from nanosysid import numerics
 numerics.pin(sys.argv[1])
-import json, tempfile, time
+import json, tempfile
 from pathlib import Path
-from omegaconf import OmegaConf
-from nanosysid import protocol
+sys.path.insert(0, "benchmarks")  # train_threads' fit, as benchmarks/run.py finds it
 from nanosysid.config import load_params
-from nanosysid.models.training import network_spec, optimiser_parts, physics_base, train_model
+from train_threads import fit
 
 cfg = load_params()
 out = {"capability": __import__("torch").backends.cpu.get_cpu_capability()}
 with tempfile.TemporaryDirectory() as tmp:
     for name in sys.argv[2:]:
-        m = OmegaConf.to_container(cfg.models[name], resolve=True)
-        t = m["train"]
-        bench = protocol.load(cfg.paths.split, horizon=int(t["horizon"]))
-        took = []
-        for epochs in (1, 1, 3):  # the first compiles phys_res's physics base (inductor), the others find it built
-            optimizer, scheduler = optimiser_parts(t["optimizer"], t["scheduler"])
-            start = time.perf_counter()
-            train_model(network_spec(m), bench.train, Path(tmp) / f"{name}.pt", physics=physics_base(m),
-                        optimizer=optimizer, scheduler=scheduler, horizon=int(t["horizon"]), stride=int(t["stride"]),
-                        batch_size=int(t["batch_size"]), epochs=epochs, patience=epochs, seed=int(t["seed"]),
-                        val_runs=t["val_runs"], accelerator="cpu", devices=1, compile=bool(t["compile"]),
-                        threads=int(t["threads"]), progress=False)
-            took.append(time.perf_counter() - start)
+        threads = int(cfg.models[name].train.threads)
+        # the first fit compiles phys_res's physics base (inductor), the others find it built
+        took = [fit(cfg, name, threads, Path(tmp) / f"{name}.pt", epochs)[0] for epochs in (1, 1, 3)]
         out[name] = (took[2] - took[1]) / 2
 print(json.dumps(out))
 """
@@ -52,20 +41,21 @@ print(json.dumps(out))
 
 def _level(level: str) -> dict:
     env = {k: v for k, v in os.environ.items() if k != "NANOSYSID_CPU_LEVEL"}
-    r = subprocess.run([sys.executable, "-c", CHILD, level, *MODELS], cwd=ROOT, env=env, capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-c", CHILD, level, *MODELS], cwd=ROOT, env=env,
+                       capture_output=True, text=True)
     if r.returncode:
         raise SystemExit(f"pinned_level: the fits at level {level} failed:\n{r.stderr[-2000:]}")
     return json.loads(r.stdout.strip().splitlines()[-1])
 
 
 def main() -> dict[str, float]:
-    auto, v2 = _level("v3"), _level("v2")
+    v3, v2 = _level("v3"), _level("v2")
     figures = {}
     for name in MODELS:
-        print(f"{name:9s} {auto['capability']}: {auto[name]:.2f} s/epoch;  x86-64-v2 ({v2['capability']}): "
-              f"{v2[name]:.2f} s/epoch ({v2[name] / auto[name]:.2f}x)")
-        figures.update({f"{name}_s": auto[name], f"{name}_v2_s": v2[name], f"{name}_v2_over_pinned": v2[name] / auto[name]})
-    figures["pinned"] = auto["capability"]
+        print(f"{name:9s} {v3['capability']}: {v3[name]:.2f} s/epoch;  x86-64-v2 ({v2['capability']}): "
+              f"{v2[name]:.2f} s/epoch ({v2[name] / v3[name]:.2f}x)")
+        figures.update({f"{name}_s": v3[name], f"{name}_v2_s": v2[name], f"{name}_v2_over_pinned": v2[name] / v3[name]})
+    figures["pinned"] = v3["capability"]
     return figures
 
 
