@@ -2,8 +2,7 @@
 two pinned code-path levels (`nanosysid.numerics`): the AVX2 one ("v3"), which the train stage
 takes on a CPU that has it, against the x86-64-v2 one that every other stage runs ("v2", and the
 train stage's under `NANOSYSID_CPU_LEVEL=v2`), each level in a process of its own, in the same
-run: seconds per epoch (an epoch's time once compiled: after a first fit of one epoch, a fit of
-three epochs less one of one, halved)."""
+run: seconds per epoch once compiled (`benchmarks/train_threads.py`'s ``per_epoch``)."""
 
 from __future__ import annotations
 
@@ -23,18 +22,16 @@ from nanosysid import numerics
 numerics.pin(sys.argv[1])
 import json, tempfile
 from pathlib import Path
-sys.path.insert(0, "benchmarks")  # train_threads' fit, as benchmarks/run.py finds it
+sys.path.insert(0, "benchmarks")  # train_threads' per_epoch, as benchmarks/run.py finds it
 from nanosysid.config import load_params
-from train_threads import fit
+from train_threads import per_epoch
 
 cfg = load_params()
 out = {"capability": __import__("torch").backends.cpu.get_cpu_capability()}
 with tempfile.TemporaryDirectory() as tmp:
     for name in sys.argv[2:]:
         threads = int(cfg.models[name].train.threads)
-        # the first fit compiles phys_res's physics base (inductor), the others find it built
-        took = [fit(cfg, name, threads, Path(tmp) / f"{name}.pt", epochs)[0] for epochs in (1, 1, 3)]
-        out[name] = (took[2] - took[1]) / 2
+        out[name] = per_epoch(cfg, name, threads, Path(tmp) / f"{name}.pt")[0]
 print(json.dumps(out))
 """
 
