@@ -17,8 +17,8 @@ ROOT = Path(__file__).resolve().parents[1]
 torch.set_num_threads(2 if os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") == "1" else 1)
 
 
-# the longest files first, longest to shortest (a fresh clone's `make test` on two cores, summed
-# seconds: 420, 85-90 each for the next four, 50-65 for the four after): `make test`'s workers
+# the longest files first, longest to shortest (summed seconds in `make test` on two cores: about
+# 400-450, then 75-90 each for the next four, 35-65 for the four after): `make test`'s workers
 # take a file each at a time in this order, so the DVC tests start at once, and the files left
 # for the end, when one worker may wait for the other, are the short ones
 FIRST = ("test_dvc.py", "test_pipeline.py", "test_discover.py", "test_fault_repro.py", "test_learned.py",
