@@ -20,7 +20,7 @@ EPOCHS = 3
 MODELS = ("residual", "phys_res", "lstm")
 
 
-def fit(cfg, name: str, threads: int, out: Path, epochs: int = EPOCHS) -> tuple[float, float]:
+def _fit(cfg, name: str, threads: int, out: Path, epochs: int) -> tuple[float, float]:
     """Train ``name`` with its own settings of ``cfg`` for ``epochs`` on ``threads`` torch threads
     into ``out``: the wall and CPU seconds the fit took."""
     m = OmegaConf.to_container(cfg.models[name], resolve=True)
@@ -40,7 +40,7 @@ def per_epoch(cfg, name: str, threads: int, out: Path) -> tuple[float, float]:
     compiled: after a first fit of one epoch (phys_res's physics base is compiled for each thread
     count), a fit of :data:`EPOCHS` less one of one, over the epochs between (a fit's own start
     and end cancel)."""
-    _, (w1, c1), (wn, cn) = (fit(cfg, name, threads, out, epochs) for epochs in (1, 1, EPOCHS))
+    _, (w1, c1), (wn, cn) = (_fit(cfg, name, threads, out, epochs) for epochs in (1, 1, EPOCHS))
     return (wn - w1) / (EPOCHS - 1), (cn - c1) / (EPOCHS - 1)
 
 
