@@ -336,3 +336,36 @@ def test_a_delay_beyond_the_search_has_an_interval_open_above():
     assert f.params["delay [s]"] == 0.025
     lo, hi = f.evidence["ci"]["delay [s]"]
     assert lo <= 0.025 and hi >= TRUTH["input_delay"][0], (lo, hi)
+
+
+def test_decorrelation_lag_is_where_an_ar1_process_forgets_its_past():
+    # x_k = a x_{k-1} + e_k correlates with its past by a^k: below 0.2 from k = 3 for a = 0.5
+    # (0.5^2 = 0.25, 0.5^3 = 0.125) and from k = 8 for a = 0.8 (0.8^7 = 0.21, 0.8^8 = 0.17); every
+    # column must have forgotten, so the slower one sets the lag
+    from scipy.signal import lfilter
+
+    from nanosysid.discover.generic import decorrelation
+
+    e = np.random.default_rng(7).normal(size=(1_000_000, 2))
+    y = np.column_stack([lfilter([1.0], [1.0, -a], e[:, i]) for i, a in enumerate((0.5, 0.8))])
+    assert decorrelation(y[:, :1]) == 3
+    assert decorrelation(y) == 8
+    assert decorrelation(np.zeros((100, 3))) == 1  # nothing left to correlate
+    assert decorrelation(np.ones((7, 1))) == 1  # too short for any lag
+
+
+def test_decorrelation_at_the_level_itself_is_decided_by_the_direct_sums():
+    # the level set to a lag's own correlation, to the last bit: that lag is not below it, the next
+    # one below it is the answer (summed directly here, sample by sample, for every lag)
+    from nanosysid.discover.generic import decorrelation
+
+    rng = np.random.default_rng(3)
+    y = np.cumsum(rng.normal(size=(5000, 1)), axis=0) % 7.0
+    c = y - y.mean(axis=0)
+    var = (c ** 2).sum(axis=0)
+    r = np.array([float(((c[k:] * c[:-k]).sum(axis=0) / var)[0]) for k in range(1, 200)])
+    for k0 in (5, 40, 120):
+        level = r[k0 - 1]
+        expected = next((k for k in range(1, 200) if r[k - 1] < level), 199)
+        assert decorrelation(y, level=level) == expected
+        assert decorrelation(y, level=np.nextafter(level, np.inf)) == next(k for k in range(1, 200) if r[k - 1] <= level)
