@@ -40,14 +40,16 @@ def main(cfg: DictConfig) -> dict:
                          sync=SyncConfig.from_mapping(plain(cfg.preprocess.sync)),
                          inertia_z_range=tuple(cfg.identify.inertia_z_range),
                          velocity=str(cfg.discover.velocity))
-    rows = campaign.check(draws, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk, progress=True)
     counts = {k: int(v) for k, v in (plain(c.get("families")) or {}).items() if int(v)}
     unknown = set(counts) - set(campaign.FAMILIES)
     if unknown:
         raise ConfigError(f"campaign.families: {sorted(unknown)}; the families are {', '.join(campaign.FAMILIES)}")
     kin = campaign.families(counts, int(c.seed), start=n)
-    family_rows = campaign.check(kin, launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk,
-                                 progress=True) if kin else []
+    # the drawn worlds and the families' in one fan-out: one set of workers, no wait between the
+    # two (a world's row is the same in any task)
+    every = campaign.check([*draws, *kin], launcher=spec, setup=setup, horizon=int(cfg.eval.horizon), chunk=chunk,
+                           progress=True)
+    rows, family_rows = every[:n], every[n:]
     relevant = float(c.relevant)
     summary = campaign.summarize(rows, relevant=relevant)
     summary["families"] = campaign.summarize_families(family_rows)

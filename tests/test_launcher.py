@@ -2,6 +2,7 @@
 built from conf/launcher/slurm.yaml (submitit's debug executor stands in for the cluster), and
 the campaign stage's summary the same with one or two local workers."""
 
+import json
 import math
 from pathlib import Path
 
@@ -121,15 +122,18 @@ def test_campaign_gives_the_same_bytes_with_one_or_two_workers(tmp_path, monkeyp
     params = tmp_path / "params.yaml"
     config.compose([], out=params)
     for workers in (1, 2):
-        # one worker: both worlds in one batch; two workers: a batch each (the tasks are even)
-        argv = ["--params", str(params), "campaign.worlds=2", "campaign.chunk=2", "campaign.duration=10.0",
-                "campaign.families.thrust_lag=0", "campaign.families.turbulence=0", "campaign.families.state=0",
+        # a drawn world and a family's; one worker: both in one batch; two workers: a batch each
+        # (the tasks are even)
+        argv = ["--params", str(params), "campaign.worlds=1", "campaign.chunk=2", "campaign.duration=10.0",
+                "campaign.families.thrust_lag=1", "campaign.families.turbulence=0", "campaign.families.state=0",
                 "sim.flight.trajectories.yawsweep.duration=6.0", "launcher=local", f"launcher.workers={workers}",
                 f"campaign.out_dir={tmp_path / str(workers)}"]
         assert run_stage(campaign.main, description="", argv=argv) == 0
-    for name in ("summary.json", "worlds.parquet", "summary.md"):
+    for name in ("summary.json", "worlds.parquet", "summary.md", "families.json"):
         assert (tmp_path / "1" / name).read_bytes() == (tmp_path / "2" / name).read_bytes(), name
     import pandas as pd
 
     table = pd.read_parquet(tmp_path / "1" / "worlds.parquet")
-    assert list(table["world"]) == [0, 1]
+    assert list(table["world"]) == [0]
+    kin = json.loads((tmp_path / "1" / "families.json").read_text())
+    assert [(r["world"], r["family"]) for r in kin] == [(1, "thrust_lag")]
