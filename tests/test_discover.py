@@ -364,8 +364,19 @@ def test_decorrelation_at_the_level_itself_is_decided_by_the_direct_sums():
     c = y - y.mean(axis=0)
     var = (c ** 2).sum(axis=0)
     r = np.array([float(((c[k:] * c[:-k]).sum(axis=0) / var)[0]) for k in range(1, 200)])
-    for k0 in (5, 40, 120):
+    for k0 in range(2, 200):
         level = r[k0 - 1]
         expected = next((k for k in range(1, 200) if r[k - 1] < level), 199)
         assert decorrelation(y, level=level) == expected
         assert decorrelation(y, level=np.nextafter(level, np.inf)) == next(k for k in range(1, 200) if r[k - 1] <= level)
+    # and on series of every memory and length, as the lags' direct sums have it
+    from scipy.signal import lfilter
+
+    for n, a in zip(rng.integers(3, 4000, 40), rng.uniform(0.0, 0.999, 40)):
+        z = lfilter([1.0], [1.0, -a], rng.normal(size=(n, 3)), axis=0)
+        c = z - z.mean(axis=0)
+        var = np.maximum((c ** 2).sum(axis=0), 1e-300)
+        last = min(200, n // 4)
+        expected = next((k for k in range(1, last) if np.all((c[k:] * c[:-k]).sum(axis=0) / var < 0.2)),
+                        max(last - 1, 1))
+        assert decorrelation(z) == expected, (n, a)
