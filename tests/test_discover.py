@@ -354,29 +354,29 @@ def test_decorrelation_lag_is_where_an_ar1_process_forgets_its_past():
     assert decorrelation(np.ones((7, 1))) == 1  # too short for any lag
 
 
+def _direct_lag(y, level=0.2):
+    """The decorrelation lag by its definition: each lag's correlation summed sample by sample."""
+    c = y - y.mean(axis=0)
+    var = np.maximum((c ** 2).sum(axis=0), 1e-300)
+    last = min(200, len(y) // 4)
+    return next((k for k in range(1, last) if np.all((c[k:] * c[:-k]).sum(axis=0) / var < level)), max(last - 1, 1))
+
+
 def test_decorrelation_at_the_level_itself_is_decided_by_the_direct_sums():
-    # the level set to a lag's own correlation, to the last bit: that lag is not below it, the next
-    # one below it is the answer (summed directly here, sample by sample, for every lag)
+    # the level set to each lag's own correlation, to the last bit (that lag is not below it), and
+    # to the next number above it (it is)
+    from scipy.signal import lfilter
+
     from nanosysid.discover.generic import decorrelation
 
     rng = np.random.default_rng(3)
     y = np.cumsum(rng.normal(size=(5000, 1)), axis=0) % 7.0
     c = y - y.mean(axis=0)
-    var = (c ** 2).sum(axis=0)
-    r = np.array([float(((c[k:] * c[:-k]).sum(axis=0) / var)[0]) for k in range(1, 200)])
     for k0 in range(2, 200):
-        level = r[k0 - 1]
-        expected = next((k for k in range(1, 200) if r[k - 1] < level), 199)
-        assert decorrelation(y, level=level) == expected
-        assert decorrelation(y, level=np.nextafter(level, np.inf)) == next(k for k in range(1, 200) if r[k - 1] <= level)
-    # and on series of every memory and length, as the lags' direct sums have it
-    from scipy.signal import lfilter
-
+        level = float(((c[k0:] * c[:-k0]).sum(axis=0) / (c ** 2).sum(axis=0))[0])
+        for at in (level, np.nextafter(level, np.inf)):
+            assert decorrelation(y, level=at) == _direct_lag(y, at), (k0, at)
+    # and on series of every memory and length
     for n, a in zip(rng.integers(3, 4000, 40), rng.uniform(0.0, 0.999, 40)):
         z = lfilter([1.0], [1.0, -a], rng.normal(size=(n, 3)), axis=0)
-        c = z - z.mean(axis=0)
-        var = np.maximum((c ** 2).sum(axis=0), 1e-300)
-        last = min(200, n // 4)
-        expected = next((k for k in range(1, last) if np.all((c[k:] * c[:-k]).sum(axis=0) / var < 0.2)),
-                        max(last - 1, 1))
-        assert decorrelation(z) == expected, (n, a)
+        assert decorrelation(z) == _direct_lag(z), (n, a)
