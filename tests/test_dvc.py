@@ -1,7 +1,7 @@
 """The pipeline as DVC runs it: outputs and the run cache travel through a remote, only what changed
 reruns, queued experiments share the run cache, and a user's own flights run through one experiment
-without the stages that need the simulator's truth. One repository for all three (its base run is
-the file's cost), the tests in that order."""
+without the simulator's stages. One repository for the first two and the third's flights (its base
+run is the file's cost), the tests in that order."""
 
 import shlex
 import shutil
@@ -134,7 +134,7 @@ def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_
     assert status.count("Success") == len(EXPERIMENTS) and "Failed" not in status, status
     shown = sh(*shlex.split(show))  # the README's view of a sweep: each experiment by name, its setting, its SimErr
     assert all(f"[{name}]" in shown for name in EXPERIMENTS) and "simerr.lstm.R" in shown, shown
-    untouched = ("simulate", "extract", "sync", "filter", "split", "identify", "discover", "campaign@sim",
+    untouched = ("simulate@sim", "extract@sim", "sync@sim", "filter@sim", "split", "identify", "discover", "campaign@sim",
                  "train@residual", "train@lstm", "evaluate@naive", "evaluate@oracle", "evaluate@residual")
     for name, (_, reruns) in EXPERIMENTS.items():
         log = sh("dvc", "queue", "logs", name)
@@ -161,14 +161,15 @@ def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_
 
 
 @pytest.mark.slow
-def test_a_users_own_flights_run_through_one_experiment_without_the_simulators_stages(dvc_repo):
+def test_a_users_own_flights_run_through_one_experiment_without_the_simulators_stages(dvc_repo, tmp_path):
     # the base run's filtered flights brought as a user's: two flights of each of two trajectories
     # of the user's own names, in the published schema, named by the README's manifest, and the
-    # yaw calibration flight k_M is identified on (3 s flights excite yaw too little). The
-    # simulator's stages have run: a user's experiment must not run them again
+    # yaw calibration flight k_M is identified on (3 s flights excite yaw too little), into a
+    # project of their own where nothing has run: a simulator's stage the experiment kept would run
     from test_config import readme_blocks
 
-    own = dvc_repo.root / "own"
+    user = DvcRepo(tmp_path / "user", dvc_repo.env)
+    own = user.root / "own"
     own.mkdir()
     manifest = next(b for b in readme_blocks("## Your own flights") if b.startswith("file,"))
     rows = [line.split(",") for line in manifest.splitlines()[1:]]
@@ -183,21 +184,22 @@ def test_a_users_own_flights_run_through_one_experiment_without_the_simulators_s
     # without the microcontroller (export.mcu.enabled=false), as a user without the ARM toolchain
     # runs it; one epoch, and discovery without its leave-one-flight-out folds, to keep it short
     quick = [a for m in ("residual", "phys_res", "lstm") for a in ("-S", f"models.{m}.train.epochs=1")]
-    out = dvc_repo.sh("dvc", "exp", "run", *SMALL, *quick, "-S", "discover.flights_out=false", "-S", "discover.sindy=false",
+    out = user.sh("dvc", "exp", "run", *SMALL, *quick, "-S", "discover.flights_out=false", "-S", "discover.sindy=false",
                       "-S", "data=csv", "-S", "data.flights_dir=own", "-S", "split.train=[loop,figure8]",
                       "-S", "split.test=[spiral]", "-S", "export.mcu.enabled=false", "-n", "own")
     ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
     assert {"split", "identify", "train@lstm", "evaluate@lstm", "discover", "report"} <= ran, ran
-    # the stages that check against the simulator's truth, and the oracle, are no part of it
-    assert not ran & {"simulate", "extract", "quality@sim", "compare@sim", "campaign@sim", "evaluate@oracle"}, ran
-    stages = dvc_repo.sh("dvc", "stage", "list", "--name-only").split()
+    # the simulator's recording chain, the stages that check against its truth, and the oracle
+    # are no part of it
+    simulator = {"simulate", "extract", "sync", "filter", "quality", "compare", "campaign"}
+    assert not [s for s in ran if s.partition("@")[0] in simulator] and "evaluate@oracle" not in ran, ran
+    stages = user.sh("dvc", "stage", "list", "--name-only").split()
     assert "evaluate@oracle" not in stages and not [s for s in stages if s.endswith("@sim")], stages
-    split = yaml.safe_load((dvc_repo.root / "processed" / "split" / "split.json").read_text())
+    split = yaml.safe_load((user.root / "processed" / "split" / "split.json").read_text())
     assert sorted(split["test"]["flights"]) == ["spiral_own_run1", "spiral_own_run2"], split
     assert sorted(split["train"]["flights"]) == ["loop_own_run1", "loop_own_run2"], split
     rows = [line.split("|")[1].strip() for line in
-            (dvc_repo.root / "reports" / "benchmark.md").read_text().split("## ")[1].splitlines() if line.startswith("| ")]
+            (user.root / "reports" / "benchmark.md").read_text().split("## ")[1].splitlines() if line.startswith("| ")]
     assert {"physics", "residual", "phys_res", "lstm", "discovered"} <= set(rows) and not [r for r in rows
                                                                                        if r.startswith("oracle")]
-    dvc_repo.sh("git", "checkout", "--", "params.yaml")
-    shutil.rmtree(own)
+    assert not (user.root / "raw" / "sim").exists()  # nothing simulated

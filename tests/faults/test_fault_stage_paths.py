@@ -91,7 +91,7 @@ def test_the_default_layout_has_no_output_over_an_input_or_another_output(params
 
     monkeypatch.chdir(ROOT)
     layout = guard.declared(config.load_params([], path=params))
-    assert len(layout) > 20 and {"simulate", "train@lstm", "evaluate@naive", "report"} <= set(layout)
+    assert len(layout) > 20 and {"simulate@sim", "train@lstm", "evaluate@naive", "report"} <= set(layout)
     clashes = [(s, o, d) for s, (deps, outs) in layout.items() for o in outs for d in deps
                if guard._overlaps(guard._resolve(o), guard._resolve(d))]
     outs = [(s, o) for s, (_, os_) in layout.items() for o in os_]
