@@ -185,8 +185,8 @@ def test_a_users_own_flights_run_through_one_experiment_without_the_simulators_s
     # runs it; one epoch, and discovery without its leave-one-flight-out folds, to keep it short
     quick = [a for m in ("residual", "phys_res", "lstm") for a in ("-S", f"models.{m}.train.epochs=1")]
     out = user.sh("dvc", "exp", "run", *SMALL, *quick, "-S", "discover.flights_out=false", "-S", "discover.sindy=false",
-                      "-S", "data=csv", "-S", "data.flights_dir=own", "-S", "split.train=[loop,figure8]",
-                      "-S", "split.test=[spiral]", "-S", "export.mcu.enabled=false", "-n", "own")
+                  "-S", "data=csv", "-S", "data.flights_dir=own", "-S", "split.train=[loop,figure8]",
+                  "-S", "split.test=[spiral]", "-S", "export.mcu.enabled=false", "-n", "own")
     ran = {line.split("'")[1] for line in out.splitlines() if line.startswith("Running stage")}
     assert {"split", "identify", "train@lstm", "evaluate@lstm", "discover", "report"} <= ran, ran
     # the simulator's recording chain, the stages that check against its truth, and the oracle

@@ -359,6 +359,6 @@ def test_each_pipelines_stages_are_named_and_guarded_with_their_own_params(monke
     layout = declared(cfg, stage="rig_sync")
     assert layout["rig_sync"][1][0] == "processed/rig/sync" and layout["sync@sim"][1][0] == "processed/sync"
     # a rig stage writing over the simulated world's output is refused (before anything is written)
-    with stage_run("rig_sync", cfg), pytest.raises(ConfigError, match=r"processed/sync.*the output of stage sync"):
+    with stage_run("rig_sync", cfg), pytest.raises(ConfigError, match=r"processed/sync.*the output of stage sync@sim"):
         with claim("processed/sync", "folder"):
             pass  # pragma: no cover
