@@ -49,7 +49,7 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
         write_report(result, tmp, nominal=_nominal_source(dc.identified))
         # the model last, once its report is whole: a report that fails leaves no model behind
         save_discovered(Path(dc.out_dir) / "model.json", result.vehicle, effects, result.model.delay,
-                        dt=step.dt, substeps=step.substeps)
+                        dt=step.dt, substeps=step.substeps, integrated=step.integrated)
     log.info("discover: %s; SimErr p %.3g -> %.3g, v %.3g -> %.3g, R %.3g -> %.3g, w %.3g -> %.3g", result.name,
              *(x for q in "pvRw" for x in (result.before.simerr[q], result.after.simerr[q])))
     return result

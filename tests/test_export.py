@@ -229,13 +229,14 @@ def test_missing_toolchain_is_one_clear_message(monkeypatch):
         mcu.require_toolchain()
 
 
-def test_discovered_model_exports_to_c_and_onnx(tmp_path):
+@pytest.mark.parametrize("integrated", [(True, True, True), (False, True, False)])
+def test_discovered_model_exports_to_c_and_onnx(tmp_path, integrated):
     from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 
     effects = {"induced_drag": [1.8e-6, 1.0e-6], "quadratic_drag": [1.5e-3, 3.0e-3], "cg_offset": [1.5e-3, -1.0e-3],
                "rotor_spread": [0.01, -0.02, 0.005], "rotor_gyro": [3.9e-8], "drag_moment": [2e-4],
                "induced_rate_damping": [1e-9, 2e-9], "term:tau_x:v_y*w_z": [1e-5], "term:F_z:T*z": [-0.01]}
-    step = AugmentedStep(Vehicle(), list(effects), [c for v in effects.values() for c in v])
+    step = AugmentedStep(Vehicle(), list(effects), [c for v in effects.values() for c in v], integrated=integrated)
     ex = augmented_step(AugmentedPredictor(step, delay=0.03), "discovered")
     assert ex.nu == 8 and "#define NSI_NU 8" in ex.c.header and "fabsf(" in ex.c.source
     _, _, f = flight_inputs(ex)
@@ -246,6 +247,9 @@ def test_discovered_model_exports_to_c_and_onnx(tmp_path):
     got = run_on_host(tmp_path, ex.c, y_in, u_in)
     ref = ex.teacher_forced(y_in, u_in)
     assert np.abs(got - ref).max() / np.abs(ref).max() < 1e-6
+    # about a held axis the C step keeps the angular velocity it was given
+    held = [10 + i for i, on in enumerate(integrated) if not on]
+    assert np.allclose(got[:, held], y_in[:, held], rtol=1e-6, atol=1e-7)
     inputs = check_inputs(ex, [f], 32, seed=0)
     out = onnx_outputs(export_onnx(ex, tmp_path)[0], inputs)[0]
     with torch.no_grad():

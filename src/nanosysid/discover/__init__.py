@@ -222,8 +222,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
                                                    share=share, progress=progress)
         stability.apply(findings, folds_out, search, selection)
     undetermined(findings)
-    model, augmented_vehicle = assemble(v, selection.chosen, fit.coef, selection.delay, rest.terms, findings,
-                                        train_flights, horizon=horizon, batch_size=batch_size)
+    model, augmented_vehicle, base = assemble(v, selection.chosen, fit.coef, selection.delay, rest.terms, findings,
+                                              search, fit.per_fold, rest.fits, horizon=horizon, batch_size=batch_size)
 
     nominal = AugmentedPredictor(AugmentedStep(v), name="nominal")
 
@@ -240,6 +240,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     result = DiscoveryResult(findings, score(nominal), after, model, nominal, augmented_vehicle,
                              selection.rounds, alpha, floor, search.noise, score(oracle) if oracle else None)
     result.diverged = diverged
+    result.base = base
     # the paper's physics model on the same nominal vehicle: the angular velocity held (dω/dt = 0)
     result.held_rate = score(StepPredictor(PhysicsStep(v, dt=nominal.step.dt, angular_dynamics=False), name="physics"))
     result.dropped = [{"entry": pk.name, "history": pk.history} for pk in selection.dropped]

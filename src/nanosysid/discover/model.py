@@ -18,12 +18,18 @@ from nanosysid.errors import DataError
 from nanosysid.rollout import advance_inputs, as_tensor, rollout
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["AugmentedStep", "AugmentedPredictor", "augmented_inputs", "rotor_rates", "save_discovered", "load_discovered"]
+__all__ = ["AXES", "AugmentedStep", "AugmentedPredictor", "augmented_inputs", "rotor_rates", "save_discovered",
+           "load_discovered", "integrating", "integrated_names", "integrated_flags"]
+
+
+AXES = ("x", "y", "z")  # the body axes, as model.json names the ones whose torque is integrated
 
 
 class AugmentedStep(nn.Module):
-    """RK4 of the full rigid-body dynamics (torque equation kept) with an extra body wrench
-    ``Phi(x, Omega, dOmega/dt) theta`` from the named effects.
+    """RK4 of the rigid-body dynamics with an extra body wrench ``Phi(x, Omega, dOmega/dt) theta``
+    from the named effects, the torque equation integrated about the body axes marked in
+    ``integrated`` (x, y, z) and the angular velocity held (``dw_i/dt = 0``, the paper's physics
+    model) about the others: the torque effects act only about integrated axes.
 
     The step's input is ``(B, 8)`` (rotor speeds and their rate), then, where an effect reads
     the rotor speeds' history (:attr:`history`), their squares' low-passes ``(B, 4 K)``
@@ -33,11 +39,13 @@ class AugmentedStep(nn.Module):
     """
 
     def __init__(self, vehicle: Vehicle, effects: Sequence[str] = (), theta: Sequence[float] = (), *,
-                 dt: float = 0.01, substeps: int = 1) -> None:
+                 dt: float = 0.01, substeps: int = 1, integrated: Sequence[bool] = (True, True, True)) -> None:
         super().__init__()
         self.vehicle, self.effects, self.dt, self.substeps = vehicle, tuple(effects), dt, substeps
+        self.integrated = dynamics.angular_axes(tuple(integrated))
         self.register_buffer("theta", torch.tensor(list(theta), dtype=torch.float64))
-        self._f = functools.partial(dynamics.quad_dynamics, **vehicle.dynamics_kwargs(), angular_dynamics=True)
+        self._f = functools.partial(dynamics.quad_dynamics, **vehicle.dynamics_kwargs(),
+                                    angular_dynamics=self.integrated)
         self.history = any("history" in library.entry(n).needs for n in self.effects)
         self.width = 8 + (4 * len(library.SLOW_TIMES) if self.history else 0)
 
@@ -101,16 +109,36 @@ class AugmentedPredictor:
         return rollout(self.step, y, torch.cat(parts, dim=-1)).numpy()
 
     def __repr__(self) -> str:
-        return f"AugmentedPredictor({'+'.join(('physics',) + self.step.effects)}, delay={self.delay:g})"
+        return (f"AugmentedPredictor({'+'.join(('physics',) + self.step.effects)}, delay={self.delay:g}, "
+                f"torque integrated about {integrated_names(self.step.integrated) or 'no axis'})")
+
+
+def integrating(predict: AugmentedPredictor, integrated: Sequence[bool] = (True, True, True)) -> AugmentedPredictor:
+    """The same model with the torque equation integrated about the axes marked in ``integrated``."""
+    p = predict.step
+    step = AugmentedStep(p.vehicle, p.effects, p.theta.tolist(), dt=p.dt, substeps=p.substeps, integrated=integrated)
+    return AugmentedPredictor(step, delay=predict.delay, name=predict.name)
+
+
+def integrated_names(integrated: Sequence[bool]) -> str:
+    """The axes whose torque is integrated, as model.json writes them (``"xy"``; ``""``: none)."""
+    return "".join(a for a, on in zip(AXES, integrated) if on)
+
+
+def integrated_flags(names: str) -> tuple[bool, bool, bool]:
+    """:func:`integrated_names` read back."""
+    return tuple(a in names for a in AXES)  # type: ignore[return-value]
 
 
 def save_discovered(path: Path, vehicle: Vehicle, effects: Mapping[str, Mapping[str, Any]], delay: float,
-               dt: float = 0.01, substeps: int = 1) -> dict[str, Any]:
+                    dt: float = 0.01, substeps: int = 1, integrated: Sequence[bool] = (True, True, True)
+                    ) -> dict[str, Any]:
     """The augmented model as JSON: vehicle (with the refitted k_F, k_M), effects and their
-    coefficients, delay."""
+    coefficients, delay, and the body axes whose torque equation it integrates
+    (``"integrated": "xyz"``; the angular velocity is held about the others)."""
     payload = {"format": "nanosysid-discovered-1", "vehicle": dataclasses.asdict(vehicle),
                "effects": {k: dict(v) for k, v in effects.items()}, "delay": float(delay), "dt": dt,
-               "substeps": substeps}
+               "substeps": substeps, "integrated": integrated_names(integrated)}
     with atomic_file(Path(path)) as tmp:
         tmp.write_text(json_text(payload))
     return payload
@@ -131,6 +159,10 @@ def load_discovered(path: str | Path, *, name: str = "discovered") -> AugmentedP
         if len(d["effects"][n]["coefficients"]) != e.n_columns:
             raise DataError(f"{path}: effect {n!r} has {len(d['effects'][n]['coefficients'])} coefficients, "
                             f"expected {e.n_columns}")
+    axes = d.get("integrated", "xyz")  # a model written before the choice of axes integrated every one
+    if not isinstance(axes, str) or set(axes) - set(AXES):
+        raise DataError(f"{path}: 'integrated' is {axes!r}; it must name body axes among x, y, z (\"xz\", \"\")")
     theta = [c for n in names for c in d["effects"][n]["coefficients"]]
-    step = AugmentedStep(vehicle, names, theta, dt=float(d["dt"]), substeps=int(d["substeps"]))
+    step = AugmentedStep(vehicle, names, theta, dt=float(d["dt"]), substeps=int(d["substeps"]),
+                         integrated=integrated_flags(axes))
     return AugmentedPredictor(step, delay=float(d["delay"]), name=name)

@@ -174,6 +174,17 @@ class DiscoveryResult:
     # why the augmented model's rollouts on the test flights are not finite (its scores are then
     # infinite), where the caller accepts that; None where they are
     diverged: str | None = None
+    # the axes whose torque equation the model integrates, and the held-out rollouts of the
+    # training flights that chose them and the generic terms (nanosysid.discover.assemble)
+    base: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def best_nominal(self) -> dict[str, float]:
+        """Per quantity, the lower SimErr on the test flights of the two nominal rows: physics_full
+        (the torque equation integrated) and the paper's physics (dω/dt = 0), the row a gain is
+        measured against."""
+        rows = [self.before.simerr] + ([self.held_rate.simerr] if self.held_rate is not None else [])
+        return {k: float(min(r[k] for r in rows)) for k in self.before.simerr}
 
     @property
     def found(self) -> list[Finding]:

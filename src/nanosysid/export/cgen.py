@@ -13,7 +13,7 @@ from collections import Counter
 from typing import Sequence, Union
 
 from nanosysid import effects as library
-from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, integrate, signed_sum
+from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, angular_axes, integrate, signed_sum
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["Tracer", "Sym", "Vector", "flit", "sqrt", "physics_step_c", "physics_step_scalar", "Num"]
@@ -148,14 +148,15 @@ def _dynamics(x: Sequence[Num], om: Sequence[Num], s: Sequence[Num], om_dot: Seq
     cw = _cross(qv, w)
     q_dot = [0.5 * (qw * w[i] + cw[i]) for i in range(3)]
     q_dot.append(-0.5 * (qv[0] * w[0] + qv[1] * w[1] + qv[2] * w[2]))
-    if angular_dynamics:
+    axes = angular_axes(angular_dynamics)
+    if any(axes):
         kl = k_f * arm
         tau = [kl * signed_sum(ROTOR_Y, s), kl * signed_sum([-c for c in ROTOR_X], s),
                k_m * signed_sum([-c for c in SPIN], s)]
         tau = [a + b for a, b in zip(tau, tau_extra)]
         Jw = [inertia[i] * w[i] for i in range(3)]
         c = _cross(w, Jw)
-        w_dot = [(tau[i] - c[i]) * (1.0 / inertia[i]) for i in range(3)]
+        w_dot = [(tau[i] - c[i]) * (1.0 / inertia[i]) if axes[i] else 0.0 for i in range(3)]
     else:
         w_dot = [0.0, 0.0, 0.0]
     return Vector([*v, *v_dot, *q_dot, *w_dot])
@@ -174,6 +175,15 @@ def physics_step_scalar(y: Sequence[Num], u: Sequence[Num], *, dt: float, subste
     return integrate(f, Vector(y), u, dt=dt, substeps=substeps, normalise=_normalise)
 
 
+def torque_equation_words(angular_dynamics) -> str:
+    """Where a step integrates the torque equation, in words."""
+    axes = angular_axes(angular_dynamics)
+    if all(axes) or not any(axes):
+        return f"{'with' if any(axes) else 'without'} the torque equation"
+    on = [a for a, keep in zip("xyz", axes) if keep]
+    return f"with the torque equation about body {', '.join(on)} only (dw/dt = 0 about the other axes)"
+
+
 def physics_step_c(name: str, *, dt: float, substeps: int, **params) -> tuple[str, Counter]:
     """C source of ``void <name>(const float y[13], const float u[NU], float y_next[13])`` and
     the count of each operation it performs (``NU`` is 8 with effects: rotor speeds and rates)."""
@@ -187,7 +197,7 @@ def physics_step_c(name: str, *, dt: float, substeps: int, **params) -> tuple[st
     body += [f"    y_next[{i}] = {Sym._r(o)};" for i, o in enumerate(out)]
     effects = "".join(f" + {n}" for n, _ in params.get("effects", ()))
     src = (f"/* RK4 of the rigid-body dynamics{effects}, {substeps} substep(s) of {dt / substeps:g} s, "
-           f"{'with' if params['angular_dynamics'] else 'without'} the torque equation: "
+           f"{torque_equation_words(params['angular_dynamics'])}: "
            f"{sum(counts.values())} floating-point operations. */\n"
            f"void {name}(const float y[13], const float u[{nu}], float y_next[13])\n{{\n" + "\n".join(body) + "\n}\n")
     return src, counts

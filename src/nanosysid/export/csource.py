@@ -165,7 +165,7 @@ def _header(name: str, ny: int, nstate: int, nu: int = 4) -> str:
 
 
 def physics_source(name: str, vehicle: Vehicle, *, dt: float = 0.01, substeps: int = 1,
-                   angular_dynamics: bool = False, effects: Sequence[tuple[str, Sequence[float]]] = ()) -> CModel:
+                   angular_dynamics: bool | Sequence[bool] = False, effects: Sequence[tuple[str, Sequence[float]]] = ()) -> CModel:
     """The physics step: straight-line RK4 (see :mod:`nanosysid.export.cgen`); with named
     ``effects`` (``(name, coefficients)``) its input is the rotor speeds and their rates."""
     effects = [(n, [float(c) for c in th]) for n, th in effects]

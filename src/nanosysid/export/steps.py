@@ -128,8 +128,8 @@ def augmented_step(predict, name: str) -> Exportable:
         raise NotExportable(f"{name}: its effects {', '.join(slow)} read the rotor speeds' history (slow "
                             "actuation), which the exported step is not given")
     effects = list(p.coefficients().items())
-    step = AugmentedStep(p.vehicle, p.effects, p.theta.tolist(), dt=p.dt, substeps=p.substeps)
-    c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=True, effects=effects)
+    step = AugmentedStep(p.vehicle, p.effects, p.theta.tolist(), dt=p.dt, substeps=p.substeps, integrated=p.integrated)
+    c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.integrated, effects=effects)
     return Exportable(name, "augmented", step.float().eval(), None, c, None, delay=predict.delay, with_rates=True)
 
 

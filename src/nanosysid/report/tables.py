@@ -227,11 +227,11 @@ def benchmark_markdown(rows: Mapping[str, Scores], costs: Mapping[str, Mapping[s
         parts += ["The `oracle` row integrates the simulator's true dynamics, hidden effects included: "
                   "the physical limit on simulated data, not a model one could fit.", ""]
     if "discovered" in rows and "physics_full" in rows:
-        # the paper's physics row holds the angular velocity; discovery's model integrates the
-        # torques, so physics_full is the row it improves on
-        parts += ["The `discovered` row is the discover stage's augmented model: `physics_full` (the rotor torques "
-                  "integrated, where the paper's `physics` row holds the angular velocity) with the effects it "
-                  "found; read it against `physics_full`. The discovery report sets it beside the other rows.", ""]
+        parts += ["The `discovered` row is the discover stage's augmented model: the nominal vehicle with the effects "
+                  "it found, its torque equation integrated only about the body axes where held-out rollouts of the "
+                  "training flights beat holding the angular velocity as the paper's `physics` row does; read it "
+                  "against the better of `physics` and `physics_full` in each quantity. The discovery report says "
+                  "which axes and why, and sets it beside the other rows.", ""]
     parts += [
         "## Cost of one step", "",
         "Trainable parameters and floating-point operations per prediction step (the LSTM: one "
