@@ -25,10 +25,11 @@ _QLABEL = {"p": "position", "v": "velocity", "R": "orientation", "w": "angular v
 
 
 def gap_closed(result: DiscoveryResult, reference: str = "oracle") -> dict[str, float | None]:
-    """Share of the gap between the best nominal row's SimErr (:attr:`~nanosysid.discover.DiscoveryResult.best_nominal`) and the
-    reference's (``"oracle"``: the true dynamics; ``"limit"``: the true dynamics of the state
-    alone) the augmented model closes, per quantity (None without the reference, or where it is
-    no better than the best nominal row)."""
+    """Share of the gap between the best nominal row's SimErr
+    (:attr:`~nanosysid.discover.DiscoveryResult.best_nominal`) and the reference's (``"oracle"``:
+    the true dynamics; ``"limit"``: the true dynamics of the state alone) the augmented model
+    closes, per quantity (None without the reference, or where it is no better than the best
+    nominal row)."""
     if getattr(result, reference) is None:
         return {k: None for k in QUANTITIES}
     ref, best = getattr(result, reference), result.best_nominal
