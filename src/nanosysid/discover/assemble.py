@@ -72,32 +72,29 @@ def assemble(vehicle: Vehicle, chosen: Sequence[str], coef: dict[str, list[float
                   for k, c in enumerate(per_fold)]
         return heldout_simerr(models, search.flights, windows, horizon, batch_size)
 
-    none = (False, False, False)
-    held = heldout(none)
-    rows = [{"integrated": "", "terms": False, "simerr": held}]
-    alone = {}
+    rows = []
+
+    def tried(axes, with_terms: bool = False) -> dict[str, float]:
+        rows.append({"integrated": integrated_names(axes), "terms": with_terms, "simerr": heldout(axes, with_terms)})
+        return rows[-1]["simerr"]
+
+    held = tried((False, False, False))
+    gain = {}
     for a in range(3):
-        axes = tuple(i == a for i in range(3))
-        s = heldout(axes)
-        rows.append({"integrated": integrated_names(axes), "terms": False, "simerr": s})
+        s = tried(tuple(i == a for i in range(3)))
         if s["R"] < held["R"] and s["w"] < held["w"]:
-            alone[a] = held["w"] - s["w"]
-    picked, best = sorted(alone, key=alone.get, reverse=True), held
+            gain[a] = held["w"] - s["w"]
+    picked = sorted(gain, key=gain.get, reverse=True)
     while len(picked) > 1:
-        axes = tuple(i in picked for i in range(3))
-        s = heldout(axes)
-        rows.append({"integrated": integrated_names(axes), "terms": False, "simerr": s})
+        s = tried(tuple(i in picked for i in range(3)))
         if s["R"] < held["R"] and s["w"] < held["w"]:
-            best = s
             break
         picked.pop()  # the axis that gained least alone is held again
     integrated = tuple(i in picked for i in range(3))
-    if len(picked) == 1:
-        best = next(r["simerr"] for r in rows if r["integrated"] == integrated_names(integrated))
+    best = next(r["simerr"] for r in reversed(rows) if r["integrated"] == integrated_names(integrated))
     added = False
     if terms:
-        s = heldout(integrated, with_terms=True)
-        rows.append({"integrated": integrated_names(integrated), "terms": True, "simerr": s})
+        s = tried(integrated, with_terms=True)
         added = all(s[q] <= best[q] for q in QUANTITIES) and any(s[q] < best[q] for q in QUANTITIES)
         if not added:
             for f in findings:
