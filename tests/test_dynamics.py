@@ -90,20 +90,25 @@ def test_gyroscopic_coupling_and_zero_angular_acceleration_option():
 
 def test_torque_equation_about_chosen_axes_only():
     # at hover speed with w = (3, 2, 1) rad/s the rotors' torques cancel, so dw/dt is the
-    # gyroscopic term alone, worked out by hand: -(w x Jw) / J, component by component
-    f = functools.partial(dynamics.quad_dynamics, **V.dynamics_kwargs(), angular_dynamics=(True, False, True))
+    # gyroscopic term alone, worked out by hand: -(w x Jw) / J, component by component; the
+    # discovered model keeps it about the axes it integrates and holds w about the others
+    from nanosysid.discover.model import AugmentedStep
+
+    step = AugmentedStep(V, ["drag_moment"], [1e-4], integrated=(True, False, True))
     x = hover_state()
     x[:, 10:13] = torch.tensor([3.0, 2.0, 1.0], dtype=torch.float64)
-    u = torch.full((1, 4), V.hover_speed, dtype=torch.float64)
+    u = torch.cat([torch.full((1, 4), V.hover_speed, dtype=torch.float64), torch.zeros(1, 4, dtype=torch.float64)], -1)
     jx, jy, jz = V.inertia
     hand = [-(2.0 * jz * 1.0 - 1.0 * jy * 2.0) / jx, 0.0, -(3.0 * jy * 2.0 - 2.0 * jx * 3.0) / jz]
-    assert np.allclose(f(x, u)[0, 10:].numpy(), hand, rtol=1e-12, atol=0)
-    # an extra torque moves only the integrated axes
-    tau = torch.tensor([[1e-4, 1e-4, 1e-4]], dtype=torch.float64)
-    d = (f(x, u, torque_body=tau) - f(x, u))[0, 10:].numpy()
+    assert np.allclose(step._dx(x, u)[0, 10:].numpy(), hand, rtol=1e-12, atol=0)
+    # an extra torque moves only the integrated axes; the translation and attitude are untouched
+    full = AugmentedStep(V, ["drag_moment"], [1e-4])
+    tau = torch.cat([u, torch.tensor([[0.0, 0.0, 0.0, 1e-4, 1e-4, 1e-4]], dtype=torch.float64)], -1)
+    d = (step._dx(x, tau) - step._dx(x, u))[0, 10:].numpy()
     assert np.allclose(d, [1e-4 / jx, 0.0, 1e-4 / jz], rtol=1e-9, atol=0)
+    assert torch.equal(step._dx(x, u)[0, :10], full._dx(x, u)[0, :10])
     with pytest.raises(ValueError, match="one flag per body axis"):
-        dynamics.quad_dynamics(x, u, **V.dynamics_kwargs(), angular_dynamics=(True, False))
+        AugmentedStep(V, integrated=(True, False))
 
 
 def test_rk4_fourth_order_on_attitude_kinematics():

@@ -36,7 +36,6 @@ __all__ = [
     "signed_sum",
     "rotor_wrench",
     "quad_dynamics",
-    "angular_axes",
     "rk4_step",
     "integrate",
     "renormalise",
@@ -113,7 +112,7 @@ def quad_dynamics(
     k_m: float,
     arm: float,
     gravity: float = GRAVITY,
-    angular_dynamics: bool | tuple[bool, bool, bool] = True,
+    angular_dynamics: bool = True,
     force_body: Tensor | None = None,
     torque_body: Tensor | None = None,
 ) -> Tensor:
@@ -130,9 +129,7 @@ def quad_dynamics(
         arm: Effective lever arm L (m).
         gravity: Gravitational acceleration (m/s^2), acting along -z of the world frame.
         angular_dynamics: If False, ``dw/dt = 0``: the paper's nominal physics baseline,
-            which keeps the measured angular velocity constant over the step. Three booleans
-            (body x, y, z): the torque equation on the axes marked True, ``dw_i/dt = 0`` on the
-            others.
+            which keeps the measured angular velocity constant over the step.
         force_body: Extra force ``(..., 3)`` in N, body frame, added to the rotor thrust.
         torque_body: Extra torque ``(..., 3)`` in N m, body frame, added to the rotor torque.
 
@@ -149,27 +146,14 @@ def quad_dynamics(
     # q_dot = 1/2 q ⊗ [w, 0], in vector form (a few ops instead of a full product)
     qv, qw = q[..., :3], q[..., 3:]
     q_dot = 0.5 * torch.cat((qw * w + torch.linalg.cross(qv, w, dim=-1), -(qv * w).sum(-1, keepdim=True)), dim=-1)
-    axes = angular_axes(angular_dynamics)
-    if any(axes):
+    if angular_dynamics:
         J = inertia if isinstance(inertia, Tensor) else _constant(tuple(inertia), x.dtype, x.device)
         if torque_body is not None:
             tau = tau + torque_body
         w_dot = (tau - torch.linalg.cross(w, J * w, dim=-1)) / J
-        if not all(axes):
-            w_dot = w_dot * _constant(tuple(float(a) for a in axes), x.dtype, x.device)
     else:
         w_dot = torch.zeros_like(w)
     return torch.cat((v, v_dot, q_dot, w_dot), dim=-1)
-
-
-def angular_axes(angular_dynamics: bool | Sequence[bool]) -> tuple[bool, bool, bool]:
-    """The body axes (x, y, z) on which :func:`quad_dynamics` integrates the torque equation."""
-    if isinstance(angular_dynamics, (bool, int)):
-        return (bool(angular_dynamics),) * 3
-    axes = tuple(bool(a) for a in angular_dynamics)
-    if len(axes) != 3:
-        raise ValueError(f"angular_dynamics: one flag per body axis (3), got {len(axes)}")
-    return axes  # type: ignore[return-value]
 
 
 def rk4_step(f: Callable[..., Tensor], x: Tensor, u: Tensor, dt: float, t=None) -> Tensor:

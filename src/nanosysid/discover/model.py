@@ -42,10 +42,16 @@ class AugmentedStep(nn.Module):
                  dt: float = 0.01, substeps: int = 1, integrated: Sequence[bool] = (True, True, True)) -> None:
         super().__init__()
         self.vehicle, self.effects, self.dt, self.substeps = vehicle, tuple(effects), dt, substeps
-        self.integrated = dynamics.angular_axes(tuple(integrated))
+        self.integrated = tuple(bool(a) for a in integrated)
+        if len(self.integrated) != len(AXES):
+            raise ValueError(f"integrated: one flag per body axis (3), got {len(self.integrated)}")
         self.register_buffer("theta", torch.tensor(list(theta), dtype=torch.float64))
+        # 1 where the state's derivative is kept, 0 on the angular velocity of a held axis
+        keep = torch.ones(13, dtype=torch.float64)
+        keep[10:13] = torch.tensor([float(a) for a in self.integrated], dtype=torch.float64)
+        self.register_buffer("keep", keep, persistent=False)
         self._f = functools.partial(dynamics.quad_dynamics, **vehicle.dynamics_kwargs(),
-                                    angular_dynamics=self.integrated)
+                                    angular_dynamics=any(self.integrated))
         self.history = any("history" in library.entry(n).needs for n in self.effects)
         self.width = 8 + (4 * len(library.SLOW_TIMES) if self.history else 0)
 
@@ -60,7 +66,8 @@ class AugmentedStep(nn.Module):
             e = u_ext[..., self.width:self.width + 6]
             force = e[..., :3] if force is None else force + e[..., :3]
             torque = e[..., 3:] if torque is None else torque + e[..., 3:]
-        return self._f(x, om, force_body=force, torque_body=torque)
+        dx = self._f(x, om, force_body=force, torque_body=torque)
+        return dx if all(self.integrated) or not any(self.integrated) else dx * self.keep.to(dx.dtype)
 
     def forward(self, y: Tensor, u_ext: Tensor) -> Tensor:
         return dynamics.integrate(self._dx, y, u_ext, dt=self.dt, substeps=self.substeps)

@@ -13,7 +13,7 @@ from collections import Counter
 from typing import Sequence, Union
 
 from nanosysid import effects as library
-from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, angular_axes, integrate, signed_sum
+from nanosysid.dynamics import ROTOR_X, ROTOR_Y, SPIN, integrate, signed_sum
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["Tracer", "Sym", "Vector", "flit", "sqrt", "physics_step_c", "physics_step_scalar", "Num"]
@@ -173,6 +173,15 @@ def physics_step_scalar(y: Sequence[Num], u: Sequence[Num], *, dt: float, subste
         return _dynamics(x, om, s, om_dot, **params)
 
     return integrate(f, Vector(y), u, dt=dt, substeps=substeps, normalise=_normalise)
+
+
+def angular_axes(angular_dynamics: bool | Sequence[bool]) -> tuple[bool, ...]:
+    """The body axes (x, y, z) whose torque equation a step integrates: one flag for all three
+    (:class:`~nanosysid.models.physics.PhysicsStep`), or one per axis
+    (:class:`~nanosysid.discover.model.AugmentedStep`; ``dw_i/dt = 0`` about the others)."""
+    if isinstance(angular_dynamics, (bool, int)):
+        return (bool(angular_dynamics),) * 3
+    return tuple(bool(a) for a in angular_dynamics)
 
 
 def torque_equation_words(angular_dynamics) -> str:
