@@ -167,3 +167,28 @@ def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tm
     if "discover" in module:
         # discovery, what scores, exports and reports its model, and the campaign that judges it
         assert "discover" in stale and not stale & {"train", "identify", "quality", "split", "simulate", "extract"}
+
+
+def test_the_committed_lock_records_the_committed_code():
+    # a stage whose lock entry records another version of a file it reads is out of date in a
+    # fresh clone: `dvc status` is not clean and the first `make repro` reruns it and rewrites
+    # dvc.lock. Every file dependency git tracks is checked against its md5 (DVC's file hash).
+    import hashlib
+    import subprocess
+
+    tracked = set(subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
+                                 check=True).stdout.split())
+    lock = yaml.safe_load((ROOT / "dvc.lock").read_text())
+    md5 = {}
+    stale = []
+    for name, stage in lock["stages"].items():
+        for dep in stage.get("deps", []):
+            path = dep["path"]
+            if path not in tracked or "md5" not in dep:
+                continue
+            if path not in md5:
+                md5[path] = hashlib.md5((ROOT / path).read_bytes()).hexdigest()
+            if dep["md5"] != md5[path]:
+                stale.append(f"{name}: {path}")
+    assert md5, "no tracked file dependency found in dvc.lock"
+    assert not stale, f"dvc.lock records other versions of: {', '.join(stale[:10])} (+{max(len(stale) - 10, 0)})"
