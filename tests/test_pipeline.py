@@ -27,11 +27,12 @@ TINY_SIM = [
     "sim.flight.preroll=0.5",
     "sim.flight.trajectories.yawsweep.duration=4.0",
     "sim.flight.trajectories.yawsweep.fade=0.5",
-    "sim.flight.trajectories.chirp.duration=3.0",
+    "sim.flight.trajectories.chirp.duration=6.0",
     "sim.flight.trajectories.melon={duration: 3.0, circle_time: 2.0, return_time: 0.5}",
     "export.mcu.start=10",
     "export.mcu.steps=20",
-    "discover.block=0.4",
+    # blocks longer than the horizon: discovery scores its choices on windows inside one block
+    "discover.block=0.6",
     "visualize.stride=40",
 ] + [f"models.{m}.train.{k}" for m in ("residual", "phys_res", "lstm")
      # the eager physics base: compiling it costs more than two epochs of it (the compiled one is
