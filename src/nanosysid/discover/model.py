@@ -166,7 +166,7 @@ def load_discovered(path: str | Path, *, name: str = "discovered") -> AugmentedP
         if len(d["effects"][n]["coefficients"]) != e.n_columns:
             raise DataError(f"{path}: effect {n!r} has {len(d['effects'][n]['coefficients'])} coefficients, "
                             f"expected {e.n_columns}")
-    axes = d.get("integrated", "xyz")  # a model written before the choice of axes integrated every one
+    axes = d.get("integrated", "xyz")  # absent: the torque equation integrated about every axis
     if not isinstance(axes, str) or set(axes) - set(AXES):
         raise DataError(f"{path}: 'integrated' is {axes!r}; it must name body axes among x, y, z (\"xz\", \"\")")
     theta = [c for n in names for c in d["effects"][n]["coefficients"]]

@@ -10,7 +10,7 @@ import numpy as np
 import torch
 from torch import Tensor, nn
 
-from nanosysid.discover.model import AugmentedStep, augmented_inputs
+from nanosysid.discover.model import augmented_inputs, integrating
 from nanosysid.effects import entry
 from nanosysid.errors import ExportError, NotExportable
 from nanosysid.export.csource import CModel, learned_source, physics_source
@@ -128,7 +128,7 @@ def augmented_step(predict, name: str) -> Exportable:
         raise NotExportable(f"{name}: its effects {', '.join(slow)} read the rotor speeds' history (slow "
                             "actuation), which the exported step is not given")
     effects = list(p.coefficients().items())
-    step = AugmentedStep(p.vehicle, p.effects, p.theta.tolist(), dt=p.dt, substeps=p.substeps, integrated=p.integrated)
+    step = integrating(predict, p.integrated).step  # a copy: the export's float cast leaves the model as it is
     c = physics_source(name, p.vehicle, dt=p.dt, substeps=p.substeps, angular_dynamics=p.integrated, effects=effects)
     return Exportable(name, "augmented", step.float().eval(), None, c, None, delay=predict.delay, with_rates=True)
 

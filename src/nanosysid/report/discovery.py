@@ -725,7 +725,8 @@ def headline(summary: dict[str, Any], report: str) -> list[str]:
             b, f = a["bands"]["before"][low][c], a["bands"]["after"][low][c]
             return f"{100 * (1 - f / b) if b > 0 else 0:.0f} %"
 
-        named = [f["name"] for f in fs if f["verdict"] == "named"]
+        # the findings named on the x/y forces themselves, not those of other channels
+        named = [f["name"] for f in fs if f["verdict"] == "named" and {"F_x", "F_y"} & set(f["channels"])]
         L += ["", f"- x/y forces: {share('F_x')} and {share('F_y')} of their residual power explained on the test "
               f"flights (named: {', '.join(f'`{n}`' for n in named) or 'none'});",
               f"- yaw torque: {share('tau_z')} of its residual power explained on the test flights;",

@@ -128,10 +128,25 @@ def rig_section(paper_md: Path, figure: Path, figure_copy: str) -> str:
 
         found = ["#### Discovery on the real flights", "",
                  *headline(json.loads(result.read_text()), (result.parent / "report.md").as_posix()), ""]
+    track = Path(paper_md).parent / "window" / "report.md"
+    if track.is_file():
+        found += window_lines(track)
     return "\n".join([RIG_BEGIN, stamp(paper_md, figure), "", *parts,
                       f"![MAE against the prediction horizon on the real test flights]({figure_copy})", "", *found,
                       f"From `{paper_md.as_posix()}`; the rig pipeline's full report is `{paper_md.parent.as_posix()}/"
                       "benchmark.md`.", RIG_END])
+
+
+def window_lines(report_md: Path) -> list[str]:
+    """The initialization-window track's table and verdict, from its report."""
+    lines = Path(report_md).read_text().splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith("| SimErr"))
+    table = lines[start:next(i for i in range(start, len(lines)) if not lines[i].startswith("|"))]
+    verdict = [line for line in lines if line.startswith("**")]
+    title = lines[0].removeprefix("# ")
+    return [f"#### {title}", "", f"Models given the samples before each window's start, as the field's loader gives "
+            f"them, on windows that start that far into a flight ([report]({Path(report_md).as_posix()})):", "",
+            *table, "", *verdict[-1:], ""]
 
 
 def update_rig(readme: Path, paper_md: Path, figure: Path, figure_copy: Path) -> bool | None:
