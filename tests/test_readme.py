@@ -330,3 +330,14 @@ def test_every_readme_command_has_a_test_that_runs_it():
         file, _, test = where.partition("::")
         source = (ROOT / file).read_text()
         assert not test or f"def {test}(" in source, where
+
+
+def test_the_window_tracks_lines_are_its_reports_table_and_last_verdict(tmp_path):
+    md = tmp_path / "report.md"
+    md.write_text("# The initialization-window track (W = 50 samples)\n\nIntro.\n\n| SimErr on the test flights, W = 50 "
+                  "| p |\n|---|---|\n| `physics` | 1 |\n\nText.\n\n| flights | x |\n|---|---|\n| a | 2 |\n\n"
+                  "**Old**: no.\n\n**What stops it**: this.\n")
+    lines = readme.window_lines(md)
+    assert lines[0] == "#### The initialization-window track (W = 50 samples)"
+    assert "| `physics` | 1 |" in lines and "| a | 2 |" not in lines
+    assert "**What stops it**: this." in lines and "**Old**: no." not in lines
