@@ -14,7 +14,7 @@ export PYTHONHASHSEED := 0
 # the numerical code paths every stage pins (src/nanosysid/numerics.py), for every command run here
 PINNED := $(shell PYTHONPATH=src $(PYTHON) -m nanosysid.numerics)
 
-.PHONY: venv test repro readme params deps bench clean-venv toolchain toolchain-check
+.PHONY: venv test repro readme params deps bench clean-venv toolchain toolchain-check toolchain-ready
 
 venv: $(STAMP)
 
@@ -39,10 +39,10 @@ $(STAMP): requirements.txt constraints.txt pyproject.toml
 	fi
 	@touch $@
 
-# The ARM toolchain and QEMU for the mcu stages, installed through apt (as root) only by
-# `make toolchain` (without --no-install-recommends they take 3 GB). Without them the mcu
-# tests are skipped and the mcu stages fail with what to install; `export.mcu.enabled=false`
-# runs them without the toolchain, recording no microcontroller figures.
+# The ARM toolchain and QEMU for the mcu stages, installed through apt (as root) by
+# `make toolchain`, which `make repro` and `make test` call where they are missing (without
+# --no-install-recommends they take 3 GB). `export.mcu.enabled=false` runs the mcu stages
+# without the toolchain, recording no microcontroller figures.
 ARM_PACKAGES := gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm gcc libc6-dev
 HAVE_TOOLCHAIN := command -v arm-none-eabi-gcc >/dev/null && command -v qemu-system-arm >/dev/null && command -v gcc >/dev/null
 toolchain:
@@ -55,9 +55,29 @@ toolchain:
 	    echo "make toolchain: as root, apt-get install --no-install-recommends $(ARM_PACKAGES)"; exit 1; \
 	fi
 
+# `make test` installs the toolchain where it can (root, apt, within 5 minutes), so that the mcu
+# tests run; where it cannot, they are skipped, with a note
 toolchain-check:
+	@if ! $(HAVE_TOOLCHAIN) && [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing $(ARM_PACKAGES): the mcu tests compile the exported models for the STM32F405 and run them on QEMU"; \
+	    timeout 300 $(MAKE) --no-print-directory toolchain || echo "the installation failed"; \
+	fi
 	@$(HAVE_TOOLCHAIN) || echo "note: no ARM toolchain or QEMU: the mcu tests are skipped and the mcu stages need \
 	\`make toolchain\` (as root) or export.mcu.enabled=false"
+
+# `make repro` has what its mcu stages need before any stage runs: the toolchain installed where it
+# can be (root, apt); where it cannot, it stops at once with what to do, unless the configuration
+# switches the microcontroller off
+MCU_ENABLED = $(shell $(BIN)/python -c "import yaml; print(str(yaml.safe_load(open('params.yaml'))['export']['mcu']['enabled']).lower())" 2>/dev/null)
+toolchain-ready: params
+	@if $(HAVE_TOOLCHAIN) || [ "$(MCU_ENABLED)" = false ]; then \
+	    :; \
+	elif [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    echo "installing $(ARM_PACKAGES): the mcu stages compile the exported models for the STM32F405 and run them on QEMU"; \
+	    $(MAKE) --no-print-directory toolchain; \
+	else \
+	    echo "make repro: the mcu stages need the ARM toolchain and QEMU, which this machine lacks; run \`make toolchain\` as root, or set export.mcu.enabled: false in conf/config.yaml (no microcontroller figures)"; exit 1; \
+	fi
 
 # two workers, one test file each at a time: a file's module fixtures (the tiny pipeline, the DVC
 # repository) are built once, and the two longest files start at once, beside each other. A third
@@ -81,7 +101,7 @@ deps: $(STAMP)
 # tracked file changes); `make readme` records those times (reports/repro.json) and regenerates
 # the README's sections from the recorded outputs
 REPRO_JOBS ?= 2
-repro: params toolchain-check
+repro: params toolchain-ready
 	env $(PINNED) $(BIN)/python -m nanosysid.repro --jobs $(REPRO_JOBS) --out reports/repro.last.json
 
 readme: $(STAMP)

@@ -164,3 +164,21 @@ def test_make_repro_and_make_test_write_no_tracked_file_and_install_nothing():
     assert ignored.returncode == 0, f"{out}: the run times' record would be a tracked file"
     # the explicit target is the one that installs the toolchain
     assert "apt-get" in subprocess.run(["make", "-n", "toolchain"], cwd=root, capture_output=True, text=True).stdout
+
+
+def test_make_repro_stops_before_any_stage_where_it_cannot_install_the_toolchain(tmp_path):
+    """Not root and no toolchain: `make repro`'s first step stops with the command and the setting,
+    and lets a configuration without the microcontroller through."""
+    root = Path(__file__).resolve().parents[1]
+    shim = tmp_path / "bin"
+    shim.mkdir()
+    (shim / "id").write_text("#!/bin/sh\necho 1000\n")  # `id -u` of a user who is not root
+    (shim / "id").chmod(0o755)
+    env = {"PATH": f"{shim}:/usr/bin:/bin", "HOME": str(tmp_path)}
+    run = subprocess.run(["make", "-s", "toolchain-ready", "HAVE_TOOLCHAIN=false"], cwd=root, env=env,
+                         capture_output=True, text=True)
+    assert run.returncode != 0
+    assert "make toolchain" in run.stdout and "export.mcu.enabled: false" in run.stdout, run.stdout
+    off = subprocess.run(["make", "-s", "toolchain-ready", "HAVE_TOOLCHAIN=false", "MCU_ENABLED=false"], cwd=root,
+                         env=env, capture_output=True, text=True)
+    assert off.returncode == 0, off.stdout + off.stderr
