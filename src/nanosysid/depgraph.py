@@ -55,11 +55,12 @@ def _parents(name: str) -> list[str]:
     return [".".join(parts[:i]) for i in range(1, len(parts))]
 
 
-# the stages that run one model (a foreach over the models): each depends on its model's own
-# code through its item's ``code`` entry in dvc.yaml (the model's config names it), not on every
-# network the components package can load by name, so adding or editing one network reruns its
-# model's stages and those that load every model (the report, the recordings), no other
-ONE_MODEL = ("stages.train", "stages.evaluate", "stages.export", "stages.mcu")
+# the stages that run the models they name (one each in a foreach over the models; the window
+# track's few): each depends on its models' own code through their ``code`` entries in dvc.yaml
+# (the model's config names it), not on every network the components package can load by name,
+# so adding or editing one network reruns its model's stages and those that load every model (the
+# report, the recordings), no other
+ONE_MODEL = ("stages.train", "stages.evaluate", "stages.export", "stages.mcu", "stages.window")
 
 
 @lru_cache(maxsize=None)
