@@ -87,9 +87,9 @@ def dvc_repo(tmp_path_factory):
 # model's setting reruns its own stages alike (tests/test_dependencies.py checks them by `dvc
 # status` on adding the README's model), so one experiment, the README's, is run here.
 EXPERIMENTS = {
-    # a physics setting: the model's evaluation, its export and MCU run
+    # a physics setting: the model's evaluation, its export and MCU run, and the window track's
     "substeps": ("models.physics.substeps=4",
-                 ("evaluate@physics", "export@physics", "mcu@physics", "report", "compare@sim", "visualize")),
+                 ("evaluate@physics", "export@physics", "mcu@physics", "report", "compare@sim", "visualize", "window")),
 }
 
 
