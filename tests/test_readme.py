@@ -295,7 +295,7 @@ def test_the_readmes_bench_command_names_benchmarks_that_exist():
 # every shell command of the README, by the start of its line, and where it is run as written
 # (file::test); a command added to the README without a runner fails the census below
 RUN_BY = {
-    "make repro": "tests/test_repro.py::test_make_repro_and_make_test_write_no_tracked_file_and_install_nothing",
+    "make repro": "tests/test_repro.py::test_make_repro_and_make_test_write_no_tracked_file_and_install_only_what_is_missing",
     "make test": ".ci/run",
     "make bench": "tests/test_readme.py::test_the_readmes_bench_command_names_benchmarks_that_exist",
     ".venv/bin/rerun ": "tests/test_readme.py::test_the_readmes_recording_command_names_a_recording_visualize_writes"
