@@ -341,3 +341,20 @@ def test_the_window_tracks_lines_are_its_reports_table_and_last_verdict(tmp_path
     assert lines[0] == "#### The initialization-window track (W = 50 samples)"
     assert "| `physics` | 1 |" in lines and "| a | 2 |" not in lines
     assert "**What stops it**: this." in lines and "**Old**: no." not in lines
+
+
+def test_the_hypotheses_lines_are_the_reports_verdicts_checks_and_worlds_table(tmp_path):
+    rig, sim = tmp_path / "rig.md", tmp_path / "sim.md"
+    rig.write_text("# Title\n\nIntro.\n\n**Verdict.** `drag_moment` explains 86 %.\n\n| hypothesis | x |\n|---|---|\n"
+                   "| `cg_offset` | 1 |\n\n## The hover check\n\nResidual torque in hover, mean: 1.\n\n"
+                   "Mean over flights: r_x 2.\n")
+    sim.write_text("# Title\n\n**Verdict.** The air.\n\n| hypothesis | x |\n|---|---|\n| a | 1 |\n\n"
+                   "| world family | worlds |\n|---|---|\n| com_offset | 20 |\n\nAfter.\n")
+    lines = readme.hypotheses_lines(rig, sim)
+    assert "**Verdict.** `drag_moment` explains 86 %." in lines
+    assert "Residual torque in hover, mean: 1." in lines and "Mean over flights: r_x 2." in lines
+    assert "| `cg_offset` | 1 |" not in lines and "| a | 1 |" not in lines
+    assert "On the default simulated world's flights: The air." in lines
+    assert "| com_offset | 20 |" in lines and "After." not in lines
+    # without the simulated pipeline's report, the rig's lines alone
+    assert not any("world family" in line for line in readme.hypotheses_lines(rig, tmp_path / "absent.md"))

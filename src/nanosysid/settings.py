@@ -131,6 +131,10 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     # the initialization-window track
     ("window.init", COUNT), ("window.models", TEXT), ("window.base", TEXT), ("window.ridge", POSITIVE),
     ("window.identified", TEXT), ("window.out_dir", TEXT),
+    # the low-frequency torque's hypotheses
+    ("hypotheses.cutoff", POSITIVE), ("hypotheses.holds", FLAG), ("hypotheses.identified", TEXT),
+    ("hypotheses.worlds.*", NONNEG_COUNT), ("hypotheses.duration", POSITIVE),
+    ("hypotheses.source", TEXT), ("hypotheses.out_dir", TEXT),
     # the campaign and the launcher
     ("campaign.worlds", COUNT), ("campaign.chunk", COUNT), ("campaign.duration", POSITIVE),
     ("campaign.user_share", NONNEG), ("campaign.max_effects", NONNEG_COUNT), ("campaign.relevant", NONNEG),

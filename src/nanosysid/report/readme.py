@@ -131,6 +131,9 @@ def rig_section(paper_md: Path, figure: Path, figure_copy: str) -> str:
     track = Path(paper_md).parent / "window" / "report.md"
     if track.is_file():
         found += window_lines(track)
+    tested = Path(paper_md).parent / "hypotheses" / "report.md"
+    if tested.is_file():
+        found += hypotheses_lines(tested, Path(paper_md).parent.parent / "hypotheses" / "report.md")
     return "\n".join([RIG_BEGIN, stamp(paper_md, figure), "", *parts,
                       f"![MAE against the prediction horizon on the real test flights]({figure_copy})", "", *found,
                       f"From `{paper_md.as_posix()}`; the rig pipeline's full report is `{paper_md.parent.as_posix()}/"
@@ -147,6 +150,31 @@ def window_lines(report_md: Path) -> list[str]:
     return [f"#### {title}", "", f"Models given the samples before each window's start, as the field's loader gives "
             f"them, on windows that start that far into a flight ([report]({Path(report_md).as_posix()})):", "",
             *table, "", *verdict[-1:], ""]
+
+
+def hypotheses_lines(report_md: Path, worlds_md: Path | None = None) -> list[str]:
+    """The low-frequency torque's hypotheses on the real flights: the verdict, the hover check and
+    the take-off holds, from their report; and the tests' counts on simulated worlds, from the
+    simulated pipeline's report where it is there."""
+    lines = Path(report_md).read_text().splitlines()
+    pick = [line for line in lines if line.startswith(("**Verdict.**", "Residual torque in hover", "Each flight's take-off",
+                                                       "Mean over flights"))]
+    out = ["#### The low-frequency roll/pitch torque's hypotheses, tested apart", "",
+           f"Each hypothesis fitted per flight, held out by reference, checked in hover and between runs of one "
+           f"reference ([report]({Path(report_md).as_posix()})):", ""]
+    for line in pick:
+        out += [line, ""]
+    if worlds_md is not None and Path(worlds_md).is_file():
+        w = Path(worlds_md).read_text().splitlines()
+        verdict = [line.removeprefix("**Verdict.** ") for line in w if line.startswith("**Verdict.**")]
+        if verdict:
+            out += [f"On the default simulated world's flights: {verdict[0]}", ""]
+        start = next((i for i, line in enumerate(w) if line.startswith("| world family")), None)
+        if start is not None:
+            table = w[start:next((i for i in range(start, len(w)) if not w[i].startswith("|")), len(w))]
+            out += [f"The same tests on simulated worlds of one effect each ([report]({Path(worlds_md).as_posix()})):",
+                    "", *table, ""]
+    return out
 
 
 def update_rig(readme: Path, paper_md: Path, figure: Path, figure_copy: Path) -> bool | None:
