@@ -52,9 +52,11 @@ class DvcRepo:
         self.sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", message, cwd=cwd)
 
 
-# the campaign stage at its smallest: one world
+# the campaign stage at its smallest: one world; the hypotheses' worlds check likewise
 TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=10.0", "campaign.families.thrust_lag=0",
-                 "campaign.families.turbulence=0", "campaign.families.state=0"]
+                 "campaign.families.turbulence=0", "campaign.families.state=0",
+                 "hypotheses.worlds.com_offset=1", "hypotheses.worlds.turbulence=0", "hypotheses.worlds.rotor_drag=0",
+                 "hypotheses.duration=6.0"]
 # the export and MCU stages of one model: the others' are the same two DVC stages over another
 # model's files (tests/test_pipeline.py runs them for a physics, a learned and a discovered model)
 ONE_EXPORT = [f"~export.models.{m}" for m in ("residual", "phys_res", "lstm", "discovered")]
@@ -78,7 +80,7 @@ SMALL = [a for o in TINY_SIM + TINY_CAMPAIGN + ONE_EXPORT + NO_TOOLCHAIN for a i
 def dvc_repo(tmp_path_factory):
     repo = DvcRepo(tmp_path_factory.mktemp("dvc") / "repo", dvc_env())
     out = repo.sh("dvc", "exp", "run", *SMALL)
-    assert "Running stage 'evaluate@physics'" in out and "Running stage 'campaign@sim'" in out
+    assert all(f"Running stage '{s}'" in out for s in ("evaluate@physics", "campaign@sim", "hypotheses"))
     return repo
 
 
