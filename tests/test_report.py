@@ -205,3 +205,19 @@ def test_the_world_comparison_measures_how_far_each_flights_mean_residual_moves(
     assert rows["tau_y residual, spread of the flights' means [mN·m]"]["ratio"] == pytest.approx(0.5)
     assert rows["tau_y residual, spread of the flights' means [mN·m]"]["off"]
     assert not rows["F_y residual, spread of the flights' means [mN]"]["off"]
+
+
+def test_the_discovery_reports_figures_name_only_what_they_draw():
+    from nanosysid.report.discovery import figure_lines, horizon_caption
+
+    # real flights have no oracle and no state limit: the caption must not promise them
+    rig = {"nominal (physics_full)": 0, "discovered (physics+induced_drag)": 0}
+    assert horizon_caption(rig) == "nominal and discovered"
+    world = {**rig, "state limit (true dynamics of the state)": 0, "oracle": 0}
+    assert horizon_caption(world) == "nominal, discovered, state limit and oracle"
+    # two findings of one label share one figure: it is drawn once, and the second points to it
+    shown = set()
+    first = figure_lines("unnamed (F_y)", "figures/finding_3.png", "F_y", shown)
+    second = figure_lines("unnamed (F_y)", "figures/finding_3.png", "F_y", shown)
+    assert sum(line.startswith("![") for line in first + second) == 1
+    assert "(figures/finding_3.png)" in second[0]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any
+from typing import Any, Mapping
 
 import numpy as np
 
@@ -184,6 +184,29 @@ def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def horizon_caption(rows: Mapping[str, Any]) -> str:
+    """The MAE figure's caption: the kinds of row it draws (an oracle only where there is one)."""
+    kinds = [k for k, prefix in (("nominal", "nominal"), ("discovered", "discovered"), ("plain SINDy", "plain SINDy"),
+                                 ("state limit", "state limit"), ("oracle", "oracle"))
+             if any(r.startswith(prefix) for r in rows)]
+    return kinds[0] if len(kinds) == 1 else ", ".join(kinds[:-1]) + " and " + kinds[-1]
+
+
+def figure_lines(label: str, path: str, channel: str, shown: set[str]) -> list[str]:
+    """A finding's figure, or where an earlier finding of the same label showed it (the generic
+    terms' sparse fit is one per channel: every unnamed finding on that channel has the same
+    contribution), a line that points to it instead of a second copy."""
+    if path in shown:
+        return [f"*Its contribution is the same fit as the {label} finding above ([figure]({path})): the generic "
+                f"terms' sparse fit on {channel} is one fit, whichever disagreement on the channel it is set against.*",
+                ""]
+    shown.add(path)
+    return [f"![{label}: residual against its fitted contribution]({path})", "",
+            f"*{label}: its fitted contribution against the residual of {channel}, before (everything else found "
+            "removed: along the dashed line when it explains it) and after (what is left); grey: ± the channel's "
+            "noise floor.*", ""]
+
+
 def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given to discovery",
                  references: dict[str, Any] | None = None) -> None:
     """``report.md``, ``result.json``, ``verdicts.md`` (for the rerun recordings) and ``figures/`` in
@@ -207,7 +230,7 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
     if a:
         channel_figure(a, figs / "channels.png")
     scatter = a.get("scatter", {}) if a else {}
-    fig_of = {}
+    fig_of, shown = {}, set()
     for i, (label, d) in enumerate(scatter.items(), 1):
         fig_of[label] = f"figures/finding_{i}.png"
         finding_figure(label, d, out / fig_of[label])
@@ -246,7 +269,7 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
               "each test flight's realisation of those disturbances, which no model can know."]
     if result.oracle is not None:
         L += ["", "The shares of the gap closed are measured from the best nominal row, per quantity, to the oracle."]
-    L += ["", "![MAE against horizon: nominal, discovered and oracle](figures/mae_horizon.png)", "",
+    L += ["", f"![MAE against horizon: {horizon_caption(rows)}](figures/mae_horizon.png)", "",
           "*MAE against the prediction horizon on the test flights (log scale).*", ""]
     L += _per_flight(result)
     L += base_text(result.base)
@@ -278,10 +301,7 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
             L.append("")
         label = f.entry or f"{f.verdict} ({', '.join(f.channels)})"
         if label in fig_of:
-            L += [f"![{label}: residual against its fitted contribution]({fig_of[label]})", "",
-                  f"*{label}: its fitted contribution against the residual of {scatter[label]['channel']}, before "
-                  "(everything else found removed: along the dashed line when it explains it) and after (what is "
-                  "left); grey: ± the channel's noise floor.*", ""]
+            L += figure_lines(label, fig_of[label], scatter[label]["channel"], shown)
     for d in result.dropped:
         h = d["history"]
         if not h.get("holds", True):
