@@ -60,7 +60,7 @@ def main(cfg: DictConfig) -> dict:
     vehicle = identified_vehicle(vehicle_of(cfg), hc.identified)
     data = hypotheses.torque_data(bench.train, vehicle, window=window, order=order, cutoff=cutoff)
     holds = _holds(cfg, bench.train, vehicle, window, order) if bool(hc.holds) else {}
-    result = hypotheses.test_hypotheses(data, hypotheses.reference_correlation(bench.train, data),
+    result = hypotheses.tested_apart(data, hypotheses.reference_correlation(bench.train, data),
                                         holds=holds or None)
     worlds = None
     if counts:

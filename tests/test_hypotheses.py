@@ -94,7 +94,7 @@ def test_a_centre_of_mass_offset_is_named_and_its_hover_torque_reproduced():
     rng = np.random.default_rng(0)
     truth = np.array([1.0e-3, -0.6e-3])
     data, index = _data(lambda c, ref, run: c["cg_offset"] @ truth + 1e-6 * rng.normal(size=(1500, 2)), _columns)
-    res = H.test_hypotheses(data, index)
+    res = H.tested_apart(data, index)
     assert res["named"] == ["cg_offset"]
     assert res["hover"]["significant"] and res["hover"]["reproduced"]["cg_offset"] > 0.99
     assert res["hypotheses"]["battery_thrust"]["status"] == "untestable"
@@ -106,7 +106,7 @@ def test_a_drag_moment_is_not_called_a_centre_of_mass_offset():
     rng = np.random.default_rng(1)
     data, index = _data(lambda c, ref, run: c["drag_moment"][:, :, 0] * 8e-4 + 1e-6 * rng.normal(size=(1500, 2)),
                         _columns)
-    res = H.test_hypotheses(data, index)
+    res = H.tested_apart(data, index)
     assert res["named"][0] in ("drag_moment", "induced_drag_moment") and "cg_offset" not in res["named"]
     # it vanishes in hover, and so does the torque
     assert not res["hover"]["significant"]
@@ -117,7 +117,7 @@ def test_a_torque_that_does_not_repeat_is_the_air_even_where_a_history_fits_it()
     # columns (slow_actuation's) carry the disturbance, as a history's columns do in closed
     # loop; what they explain does not repeat between runs, so it is no function of the reference
     data, index = _data(lambda c, ref, run: c["slow_actuation"] @ np.array([1e-4, 5e-5, 0.0]), _columns)
-    res = H.test_hypotheses(data, index)
+    res = H.tested_apart(data, index)
     assert res["hypotheses"]["slow_actuation"]["share"] > 0.5
     assert res["named"] == [H.AIR]
     assert res["hypotheses"]["slow_actuation"]["status"] == "excluded"

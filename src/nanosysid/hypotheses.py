@@ -28,7 +28,7 @@ between runs of one reference. :func:`verdict` names what the data support and w
 Example::
 
     data = torque_data(flights, vehicle)
-    result = test_hypotheses(data, reference_correlation(flights, data))
+    result = tested_apart(data, reference_correlation(flights, data))
     result["named"]      # e.g. ['induced_drag_moment', 'cg_offset'], ['air'] or []
 """
 
@@ -50,7 +50,7 @@ from nanosysid.vehicle import Vehicle
 
 __all__ = ["HYPOTHESES", "HOLD", "AIR", "CUTOFF", "MIN_SHARE", "TIE", "REPEAT", "TorqueData", "torque_data",
            "MIN_GAIN", "lowpass", "fit", "per_flight", "held_out", "hover_check", "reference_correlation", "hold_offset",
-           "test_hypotheses", "verdict"]
+           "tested_apart", "verdict"]
 
 # the library entries put to the tests, in the order the report lists them
 HYPOTHESES = ("cg_offset", "induced_drag_moment", "drag_moment", "rotor_spread", "slow_actuation", "battery_thrust")
@@ -257,7 +257,7 @@ def hold_offset(hold: Flight, vehicle: Vehicle, *, window: int = 15, order: int 
     return {"offset": theta.tolist(), "half_width": half.tolist(), "seconds": float(hold.t[keep[-1]] - hold.t[keep[0]])}
 
 
-def _select(data: Sequence[TorqueData], candidates: Sequence[str],
+def _select(data: Sequence[TorqueData], columns: Mapping[str, int],
             repeats: Mapping[str, float | None]) -> tuple[list[dict[str, Any]], list[str]]:
     """Forward selection over held-out shares: each round adds the candidate whose joint held-out
     share gains most, if the gain reaches :data:`MIN_SHARE` (first round) or :data:`MIN_GAIN`
@@ -266,21 +266,21 @@ def _select(data: Sequence[TorqueData], candidates: Sequence[str],
     its partner runs', at least :data:`REPEAT`; None where no run has a partner). A function of
     the state and the inputs along one reference repeats with it; a fit that follows the
     controller's answer to a disturbance (the rotor speeds' history answers every torque that
-    acts) does not. Candidates
-    whose gains lie within :data:`TIE` of the best are not told apart: the one with the fewest
-    coefficients is added. Returns the rounds and the names added."""
+    acts) does not. Candidates whose gains lie within :data:`TIE` of the best are not told apart:
+    the one with the fewest coefficients (``columns``: each candidate's columns that are not zero)
+    is added. Returns the rounds and the names added."""
     named: list[str] = []
     share = 0.0
     rounds = []
     while True:
         gains = {}
-        for c in candidates:
+        for c in columns:
             if c in named:
                 continue
             ho = held_out(data, [*named, c])
             pf = per_flight(data, [*named, c])
-            k = len(pf["mean"]) - len(_stack(data[:1], [c])[0][0])
-            sig = bool(np.any(np.abs(pf["mean"][k:]) > pf["half_width"][k:]))
+            own = slice(len(pf["mean"]) - data[0].columns[c].shape[-1], None)  # the candidate's coefficients
+            sig = bool(np.any(np.abs(pf["mean"][own]) > pf["half_width"][own]))
             rep = repeats.get(c)
             gains[c] = {"gain": ho["share"] - share, "share": ho["share"], "significant": sig,
                         "repeats": rep is None or rep >= REPEAT}
@@ -291,14 +291,13 @@ def _select(data: Sequence[TorqueData], candidates: Sequence[str],
             return rounds, named
         best = max(g["gain"] for g in ok.values())
         tied = [c for c, g in ok.items() if g["gain"] >= best - TIE]
-        columns = {c: int(_live(_stack(data, [c])[0]).sum()) for c in tied}
         pick = min(tied, key=lambda c: (columns[c], -ok[c]["gain"]))
         rounds.append({"added": pick, "gains": gains, "not_told_apart": [c for c in tied if c != pick]})
         named.append(pick)
         share = ok[pick]["share"]
 
 
-def test_hypotheses(data: Sequence[TorqueData], index: np.ndarray | None = None, *,
+def tested_apart(data: Sequence[TorqueData], index: np.ndarray | None = None, *,
                     holds: Mapping[str, Sequence[float]] | None = None) -> dict[str, Any]:
     """Every hypothesis' tests, the forward selection and the verdict.
 
@@ -354,7 +353,7 @@ def test_hypotheses(data: Sequence[TorqueData], index: np.ndarray | None = None,
         repeats["residual"] = _correlation([d.r for d in data], index)
     for name, pred in preds.items():
         repeat(name, pred)
-    rounds, named = _select(data, testable, repeats["explained"])
+    rounds, named = _select(data, {n: records[n]["columns"] for n in testable}, repeats["explained"])
     share = None
     if named:
         ho = held_out(data, named)
