@@ -74,7 +74,7 @@ def main(cfg: DictConfig) -> dict:
               "rounds": result["rounds"], "worlds": worlds}
     with atomic_dir(Path(hc.out_dir), inputs=[cfg.paths.split]) as tmp:
         with atomic_file(tmp / "result.json") as f:
-            f.write_text(json_text(_plain(record), sort_keys=True))
+            f.write_text(json_text(_without_series(record), sort_keys=True))
         with atomic_file(tmp / "report.md") as f:
             f.write_text(hypotheses_markdown(result, source=str(hc.source), cutoff=cutoff, worlds=worlds,
                                              weight=vehicle.mass * GRAVITY))
@@ -82,16 +82,12 @@ def main(cfg: DictConfig) -> dict:
     return record
 
 
-def _plain(x):
-    """JSON's types: arrays to lists, numpy scalars to floats, the flights' predictions left out."""
+def _without_series(x):
+    """``x`` without the flights' sample-by-sample series (json_text turns numpy's types into JSON's)."""
     if isinstance(x, dict):
-        return {k: _plain(v) for k, v in x.items() if k not in ("prediction", "flight_shares")}
+        return {k: _without_series(v) for k, v in x.items() if k not in ("prediction", "flight_shares")}
     if isinstance(x, (list, tuple)):
-        return [_plain(v) for v in x]
-    if isinstance(x, np.ndarray):
-        return x.tolist()
-    if isinstance(x, np.generic):
-        return x.item()
+        return [_without_series(v) for v in x]
     return x
 
 

@@ -12,7 +12,7 @@ Example::
 
     worlds = draw({"com_offset": 20, "turbulence": 20, "rotor_drag": 20}, seed=0)
     rows = check(worlds, cfg=campaign.short_flights_config(20.0), vehicle=Vehicle())
-    summarize(rows)["families"]["com_offset"]["named_share"]
+    summarize(rows)["families"]["com_offset"]["met_share"]
 """
 
 from __future__ import annotations
@@ -30,7 +30,7 @@ from nanosysid.vehicle import Vehicle
 
 __all__ = ["FAMILIES", "HypothesisWorld", "draw", "check", "summarize"]
 
-# family -> (nature's effect, the verdict the tests must reach on it)
+# family (the one effect of nature its worlds hold) -> the verdict the tests must reach on it
 FAMILIES = {"com_offset": "named cg_offset", "turbulence": "no cg_offset", "rotor_drag": "no cg_offset"}
 STRENGTHS = (0.3, 3.0)
 TRAIN = ("square", "random", "chirp")

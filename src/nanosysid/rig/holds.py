@@ -14,7 +14,7 @@ import numpy as np
 
 from nanosysid.dataio import Flight
 from nanosysid.errors import DataError
-from nanosysid.rig.logs import LogSpec, read_log, trajectory_segment
+from nanosysid.rig.logs import LogSpec, _runs, read_log, trajectory_segment
 
 __all__ = ["HOLD_HEIGHT", "take_off_hold"]
 
@@ -46,8 +46,7 @@ def take_off_hold(path: str | Path, spec: LogSpec, name: str, *, height: float =
     ok = (np.isfinite(erpm).all(axis=1) & (erpm <= spec.max_erpm).all(axis=1) & np.isfinite(y).all(axis=1)
           & (y[:, 2] > height))
     # the hold's longest run of valid rows: the derivatives need consecutive samples
-    edges = np.flatnonzero(np.diff(np.r_[0, ok.astype(np.int8), 0]))
-    runs = list(zip(edges[::2], edges[1::2]))
+    runs = _runs(ok)
     if not runs or max(b - a for a, b in runs) < 20:
         raise DataError(f"{where}: columns 'is_flying z m1_erpm..m4_erpm': fewer than 20 valid rows of take-off hold "
                         f"above {height:g} m before the flight segment")
