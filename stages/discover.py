@@ -13,7 +13,7 @@ from nanosysid.discover.model import save_discovered
 from nanosysid.effects import entry
 from nanosysid.identify import identified_vehicle, read_identified
 from nanosysid.report.discovery import write_report
-from nanosysid.sim.world import DEFAULT_WORLD, state_effects
+from nanosysid.sim.world import DEFAULT_WORLD, REGISTRY, state_effects
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.discover")
@@ -24,13 +24,17 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     k_M; write ``<discover.out_dir>/model.json`` and ``<discover.report_dir>/`` (report,
     result, figures)."""
     dc = cfg.discover
-    oracle = limit = None
+    oracle = limit = world = None
     if dc.oracle is not None:
         # the oracle built here, not through the registry of every model (which loads every network)
         options = {k: v for k, v in plain(dc.oracle).items() if k not in ("kind", "artifact", "code")}
         oracle = sim.oracle_of(**options)
+        effects = dict(options.get("effects") or DEFAULT_WORLD)
+        # the world beside the verdicts, in the report only: discovery never sees it
+        world = {k: {"strength": float(s), "described_by": sorted(REGISTRY[k].described_by)}
+                 for k, s in effects.items() if float(s)}
         # the limit of a model of the state: the true dynamics without the effects of time
-        state = state_effects(dict(options.get("effects") or DEFAULT_WORLD))
+        state = state_effects(effects)
         limit = sim.oracle_of(**{**options, "effects": state, "seed": int(options.get("seed", 0))})
     H = int(cfg.eval.horizon)
     bench = protocol.load(cfg.paths.split, horizon=H)
@@ -46,7 +50,7 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     effects = {name: {"params": list(entry(name).params), "coefficients": coef}
                for name, coef in step.coefficients().items()}
     with atomic_dir(Path(dc.report_dir), inputs=[cfg.paths.split]) as tmp:
-        write_report(result, tmp, nominal=_nominal_source(dc.identified))
+        write_report(result, tmp, nominal=_nominal_source(dc.identified), world=world)
         # the model last, once its report is whole: a report that fails leaves no model behind
         save_discovered(Path(dc.out_dir) / "model.json", result.vehicle, effects, result.model.delay,
                         dt=step.dt, substeps=step.substeps, integrated=step.integrated)

@@ -54,8 +54,8 @@ class DvcRepo:
 
 # the campaign stage at its smallest: one world; the hypotheses' worlds check likewise
 TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=10.0", "campaign.families.thrust_lag=0",
-                 "campaign.families.turbulence=0", "campaign.families.state=0",
-                 "hypotheses.worlds.com_offset=1", "hypotheses.worlds.turbulence=0", "hypotheses.worlds.rotor_drag=0",
+                 "campaign.families.turbulence=0", "campaign.families.state=0", "campaign.families.gusts=0",
+                 "campaign.families.residual_delay=0", "hypotheses.worlds.com_offset=1", "hypotheses.worlds.turbulence=0", "hypotheses.worlds.rotor_drag=0",
                  "hypotheses.duration=6.0"]
 # the export and MCU stages of one model: the others' are the same two DVC stages over another
 # model's files (tests/test_pipeline.py runs them for a physics, a learned and a discovered model)

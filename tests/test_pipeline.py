@@ -14,6 +14,7 @@ from nanosysid.dataio import read_flight_csv
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 from nanosysid.discover import VERDICTS as discover_verdicts
+from nanosysid.discover.rules import violations
 from nanosysid.effects import LIBRARY as discover_library
 from stages import (compare, discover, evaluate, export, extract, filter as filter_stage, identify, mcu, quality, report,
                     simulate, split, sync, train, visualize)
@@ -363,11 +364,14 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     model = json.loads((tiny / "discovered" / "model.json").read_text())
     result = json.loads((tiny / "discovery" / "result.json").read_text())
     assert model["format"] == "nanosysid-discovered-1"
+    # the model applies the named, ambiguous and undetermined findings' entries (not an unstable
+    # one), and every verdict obeys the rules of docs/discovery.md
     used = [f["name"] or f["alternatives"][0] for f in result["findings"]
-            if f["verdict"] in ("named", "ambiguous", "unstable", "undetermined")]
+            if f["verdict"] in ("named", "ambiguous", "undetermined")]
     wrench = [n for n in used if discover_library[n].kind == "wrench"]
     assert [n for n in model["effects"] if not n.startswith("term:")] == wrench
     assert all(f["verdict"] in discover_verdicts for f in result["findings"])
+    assert violations(result) == []
     # beside the oracle, the limit of a model of the state (the oracle without the effects of time)
     assert set(result["simerr"]) == {"nominal", "physics", "best_nominal", "discovered", "oracle", "state_limit",
                                      "sindy"}

@@ -221,3 +221,28 @@ def test_the_discovery_reports_figures_name_only_what_they_draw():
     second = figure_lines("unnamed (F_y)", "figures/finding_3.png", "F_y", shown)
     assert sum(line.startswith("![") for line in first + second) == 1
     assert "(figures/finding_3.png)" in second[0]
+
+
+def test_the_discovery_report_sets_the_worlds_effects_beside_the_verdicts_and_names_a_false_one():
+    from nanosysid.report.discovery import _separate_text, verdicts_markdown, world_lines
+
+    world = {"rotor_drag": {"strength": 1.0, "described_by": ["drag_moment", "induced_drag"]},
+             "turbulence": {"strength": 1.0, "described_by": []}}
+    findings = [{"verdict": "named", "name": "induced_drag", "alternatives": [], "channels": ["F_x"], "evidence": {}},
+                {"verdict": "named", "name": "slow_actuation", "alternatives": [], "channels": ["F_z"], "evidence": {}},
+                {"verdict": "unstable", "name": None, "alternatives": ["battery_thrust"], "channels": ["F_z"],
+                 "evidence": {}}]
+    text = "\n".join(world_lines(world, findings))
+    assert "| `rotor_drag` | 1 | `drag_moment`, `induced_drag` | `induced_drag` named |" in text
+    assert "| `turbulence` | 1 | (no entry: an effect of time) | no entry of it named |" in text
+    # a name no effect of the world has is said, an unstable one is no name
+    assert text.rstrip().endswith("**Named or ambiguous and in no effect of the world**: `slow_actuation`")
+    # an unstable residual with no entry says what it would have been, not an entry it has not
+    line = verdicts_markdown([{"verdict": "unstable", "name": None, "alternatives": [], "channels": ["F_x"],
+                               "evidence": {"was": "not a function of the state"}}])
+    assert "- unstable (F_x): not a function of the state not reached" in line
+    # rivals the library separates by one manoeuvre get it once, not once each
+    one = _separate_text({"drag_moment": "fast passes", "induced_drag_moment": "fast passes"})
+    assert one.count("fast passes") == 1 and "`drag_moment` and `induced_drag_moment`" in one
+    two = _separate_text({"cg_offset": "throttle steps", "rotor_spread": "yaw turns"})
+    assert two == "`cg_offset`: throttle steps; `rotor_spread`: yaw turns"

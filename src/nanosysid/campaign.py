@@ -140,16 +140,23 @@ def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3
 
 
 # The families of worlds that test what a disagreement no function of the state explains is a
-# function of: a slow lag of the rotors' wrench alone, turbulence alone (both flown twice per
-# training trajectory, so that runs of one reference can be compared), and worlds of state
-# effects alone, which must never get that verdict
+# function of: a slow lag of the rotors' wrench alone, turbulence alone, gusts alone (a
+# disturbance of another shape and spectrum than the turbulence's), the recorded rotor speeds a
+# few milliseconds late alone (what the sync stage leaves of the telemetry's delay) (each flown
+# twice per training trajectory, so that runs of one reference can be compared), and worlds of
+# state effects alone, which must never get that verdict. Only the first may name a slow lag.
 STATE_ONLY = ("com_offset", "motor_asymmetry", "rotor_inertia", "rotor_drag", "body_drag", "inertia_offset")
-FAMILIES = {"thrust_lag": ("thrust_lag",), "turbulence": ("turbulence",), "state": STATE_ONLY}
+FAMILIES = {"thrust_lag": ("thrust_lag",), "turbulence": ("turbulence",), "gusts": ("gusts",),
+            "residual_delay": ("telemetry_delay",), "state": STATE_ONLY}
+# the strengths a single-effect family is drawn in (log-uniform), where not 0.5..3: the residual
+# delay is 3-9 ms (the telemetry's 30 ms at 0.1-0.3), what the sync stage's estimate leaves
+FAMILY_STRENGTHS = {"residual_delay": (0.1, 0.3)}
 
 
 def families(counts: Mapping[str, int], seed: int = 0, *, start: int = 0) -> list[HiddenWorld]:
     """Worlds of each family of :data:`FAMILIES` (``counts``: family -> number), indices from
-    ``start``: the single-effect families at strengths log-uniform in 0.5..3, the state family
+    ``start``: the single-effect families at strengths log-uniform in 0.5..3 (or their
+    :data:`FAMILY_STRENGTHS`), the state family
     with 2 to 4 of its effects at 0.3..3; every training trajectory flown twice."""
     rng = np.random.default_rng([seed, 7])
     out, i = [], start
@@ -157,7 +164,8 @@ def families(counts: Mapping[str, int], seed: int = 0, *, start: int = 0) -> lis
         names = FAMILIES[fam]
         for _ in range(int(n)):
             if len(names) == 1:
-                effects = {names[0]: float(f"{math.exp(rng.uniform(math.log(0.5), math.log(3.0))):.3g}")}
+                lo, hi = FAMILY_STRENGTHS.get(fam, (0.5, 3.0))
+                effects = {names[0]: float(f"{math.exp(rng.uniform(math.log(lo), math.log(hi))):.3g}")}
             else:
                 k = int(rng.integers(2, 5))
                 effects = {e: float(f"{math.exp(rng.uniform(math.log(0.3), math.log(3.0))):.3g}")

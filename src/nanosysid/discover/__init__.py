@@ -101,7 +101,7 @@ from nanosysid.discover import stability
 from nanosysid.discover.select import check_reference, prune, select
 from nanosysid.discover.sources import reference_pairs
 from nanosysid.discover.verdicts import coefficients, named, stateless, undetermined, unnamed
-from nanosysid.effects import CHANNELS, LIBRARY
+from nanosysid.effects import CHANNELS, DELAY, LIBRARY
 from nanosysid.errors import ConfigError, DataError, PredictionError
 from nanosysid.identify import identify
 from nanosysid.metrics import QUANTITIES
@@ -165,7 +165,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             interval reaches all of it (the flights tell yaw ratios to J_z, not J_z).
         flights_out: Also run the search without each training flight in turn
             (:mod:`nanosysid.discover.stability`): fold stability, intervals from flights, and
-            the verdict ``unstable`` for a named one that holds on too few folds.
+            the verdict ``unstable`` for one that holds on too few folds (it then leaves the
+            augmented model).
         hold_k_m: Hold k_M at the given vehicle's instead of refitting it with every candidate.
             Refitting (the default) is least squares on closed-loop flights, which the identify
             stage's instrumental variables avoid; holding leaves every effect that bends the
@@ -222,8 +223,9 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
                                                    share=share, progress=progress)
         stability.apply(findings, folds_out, search, selection)
     undetermined(findings)
-    model, augmented_vehicle, base = assemble(v, selection.chosen, fit.coef, selection.delay, rest.terms, findings,
-                                              search, fit.per_fold, rest.fits, horizon=horizon, batch_size=batch_size)
+    selection, fit, terms, fits = _named_only(findings, search, selection, fit, rest, v, inertia_z_range)
+    model, augmented_vehicle, base = assemble(v, selection.chosen, fit.coef, selection.delay, terms, findings,
+                                              search, fit.per_fold, fits, horizon=horizon, batch_size=batch_size)
 
     nominal = AugmentedPredictor(AugmentedStep(v), name="nominal")
 
@@ -258,6 +260,31 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
                                        generic_fits=rest.fits, horizon=horizon, batch_size=batch_size,
                                        partners=pairs.partners)
     return result
+
+
+def _named_only(findings: Sequence[Finding], search: Search, selection, fit, rest, vehicle: Vehicle,
+                inertia_z_range) -> tuple[Any, Any, dict[str, float], list]:
+    """The selection, its fit and the generic terms without what only a few flights carry: an
+    unstable entry leaves the augmented model and its name, and so do the generic terms of an
+    unstable unnamed channel. The kept entries are fitted again without the ones left out, and
+    their findings take the refitted values (their intervals, from fits that had the left-out
+    entry as one more column, stay as wide). An undetermined entry stays: every flight carries
+    it, and its fit is the best estimate even where its interval cannot exclude zero."""
+    out = {f.entry for f in findings if f.verdict == UNSTABLE and f.entry}
+    channels = {c for f in findings if f.verdict == UNSTABLE and f.evidence.get("was") == "unnamed"
+                and not f.evidence.get("repeats") for c in f.channels}
+    terms = {k: x for k, x in rest.terms.items() if k.split(":")[1] not in channels}
+    fits = [(c, a) for c, a in rest.fits if CHANNELS[c] not in channels]
+    if not out:
+        return selection, fit, terms, fits
+    kept = dataclasses.replace(selection, chosen=[n for n in selection.chosen if n not in out],
+                               delay=0.0 if DELAY.name in out else selection.delay)
+    fit = coefficients(search, kept, vehicle, inertia_z_range)
+    for f in findings:
+        if f.verdict in ("named", "ambiguous") and f.entry in kept.chosen:
+            e = LIBRARY[f.entry]
+            f.params = dict(zip(e.params, (float(x) for x in e.values(fit.coef[f.entry], vehicle))))
+    return kept, fit, terms, fits
 
 
 def _check_settings(*, folds, block, alpha, floor, share, window, order) -> None:

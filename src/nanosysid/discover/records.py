@@ -193,11 +193,13 @@ class DiscoveryResult:
 
     @property
     def name(self) -> str:
-        """``physics+<entries>``: every library entry the augmented model applies, and ``terms``
-        where it applies generic terms (an unnamed finding's are left out where they would make
-        the training rollouts diverge, or where it is no fit of the state)."""
+        """``physics+<entries>``: every library entry the augmented model applies (the named,
+        ambiguous and undetermined findings'; an unstable one is left out of the model), and
+        ``terms`` where it applies generic terms (an unnamed finding's are left out where they
+        would make the training rollouts diverge, or where it is no fit of the state)."""
         terms = [f for f in self.unnamed if f.evidence.get("added", True)]
-        parts = [f.entry for f in self.findings if f.entry] + (["terms"] if terms else [])
+        parts = [f.entry for f in self.findings if f.entry and f.verdict in ("named", "ambiguous", "undetermined")]
+        parts += ["terms"] if terms else []
         return "+".join(["physics"] + parts)
 
     @property

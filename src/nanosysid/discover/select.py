@@ -20,7 +20,7 @@ from nanosysid.discover import generic
 from nanosysid.discover.records import Candidate, Pick
 from nanosysid.discover.fit import COLUMN_ENTRIES
 from nanosysid.discover.search import Search, channels_of
-from nanosysid.discover.sources import Pairs, reference_check
+from nanosysid.discover.sources import HISTORY_REPEAT, Pairs, reference_check
 from nanosysid.discover.stats import jackknife, pvalue
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, split_coefficients
 
@@ -117,7 +117,8 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
     (:func:`nanosysid.discover.sources.reference_check`): else it is fitted to the controller's
     answer to a disturbance of time (in closed loop a disturbance torque moves the angular
     acceleration an inertia correction is made of, and the rotor speeds a lag is made of). An
-    entry of the rotor speeds' history must also, added to every entry of the state in the
+    entry of the rotor speeds' history must repeat nearly whole (the slope's interval reaching
+    :data:`~nanosysid.discover.sources.HISTORY_REPEAT`, ``history["whole"]``), and also, added to every entry of the state in the
     library fitted at once (and the other chosen ones), still improve the held-out fit by the
     selection's own test (one-sided signed-rank over blocks at ``alpha``, a size of at least
     ``floor``): else it stands in for a function of the state (a rotor's inertia answers the
@@ -140,6 +141,9 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
         contribution = (X @ np.array(fitted[pk.name])) * search.weights
         pk.history = reference_check(contribution, left + contribution, pairs, search.blocks, g.fold)
         holds = pk.history["holds"]
+        if "history" in entry(pk.name).needs and pk.history["checked"]:
+            pk.history["whole"] = bool(pk.history["ci"][1] >= HISTORY_REPEAT)
+            holds = pk.history["holds"] = holds and pk.history["whole"]
         if "history" in entry(pk.name).needs:
             base = others + [n for n in state if n not in others]
             without, _ = g.heldout(search.cols(base))

@@ -32,6 +32,11 @@ __all__ = ["reference_pairs", "Pairs", "reference_check", "source", "SOURCES", "
 SAME_REFERENCE = 0.35
 # the most the instrumental estimate of a history entry's size may exceed the least-squares one
 AGREE = 1.5
+# the least share of what an entry of the rotor speeds' history fits that must repeat with the
+# reference (the upper end of the instrumental slope's interval): a lag repeats whole; in closed
+# loop its columns also carry the controller's answer to every disturbance and the recorded
+# speeds' noise, which do not, and a few milliseconds' residual delay, which repeats in part
+HISTORY_REPEAT = 0.8
 # a residual that repeats between runs of one reference is a function of the reference: of the
 # input history or of a state signal the library lacks
 SOURCES = ("the reference", "time", "undecided")

@@ -26,7 +26,7 @@ from nanosysid.vehicle import Vehicle
 
 __all__ = ["leave_one_flight_out", "apply", "HOLD"]
 
-HOLD = 0.8  # share of the folds a named verdict must hold on
+HOLD = 0.8  # share of the folds a verdict must hold on
 
 
 def leave_one_flight_out(search: Search, selection: Selection, vehicle: Vehicle, delays: Sequence[float], *,
@@ -75,8 +75,9 @@ def _held(f: Finding, row: dict[str, Any]) -> bool:
 def apply(findings: Sequence[Finding], rows: Sequence[dict[str, Any]], search: Search, selection: Selection,
           level: float = 0.95) -> None:
     """Each finding's fold stability into its evidence (``folds``: held on, out of, the
-    flights whose fold does not reach it); a named or ambiguous finding that holds on fewer
-    than :data:`HOLD` of the folds becomes ``unstable``. A named entry's interval is widened to
+    flights whose fold does not reach it); a finding of any verdict that holds on fewer than
+    :data:`HOLD` of the folds becomes ``unstable`` (``evidence["was"]``: the verdict it would
+    have had): one or a few flights carry it. A named entry's interval is widened to
     reach its interval from flights (the folds' jackknife), kept as ``ci_flights``."""
     if not rows:
         return
@@ -97,6 +98,6 @@ def apply(findings: Sequence[Finding], rows: Sequence[dict[str, Any]], search: S
             if "ci" in ev:
                 ev["ci"] = {p: (min(ev["ci"][p][0], ev["ci_flights"][p][0]), max(ev["ci"][p][1], ev["ci_flights"][p][1]))
                             for p in params}
-        if f.verdict in ("named", "ambiguous") and sum(held) < HOLD * n:
+        if sum(held) < HOLD * n:
             ev["was"] = f.verdict
             f.verdict = UNSTABLE

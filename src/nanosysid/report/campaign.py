@@ -72,8 +72,11 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
         L += ["## A function of the state, of the input history, or of time", "",
               "Worlds of one kind each, every training trajectory flown twice (runs of one reference to compare): a "
               "slow lag of the rotors' wrench alone (`thrust_lag`, which `slow_actuation` describes), turbulence "
-              "alone (a function of time), and state effects alone (the inertia, a torque scale, the drags, the "
-              "rotor terms: never \"not a function of the state\"). Counts of worlds; a world whose discovery "
+              "alone (a function of time), gusts alone (a function of time of another shape and spectrum: steps), "
+              "the recorded rotor speeds a few milliseconds late alone (`residual_delay`: what the sync stage "
+              "leaves of the telemetry's delay), and state effects alone (the inertia, a torque scale, the drags, "
+              "the rotor terms: never \"not a function of the state\"). Only the first may name `slow_actuation`. "
+              "Counts of worlds; a world whose discovery "
               "failed is counted apart; where the augmented model's rollouts on the test flight diverge, its "
               "verdicts are counted and the divergence too.", "",
               "| family | worlds | failed | augmented model diverged | `slow_actuation` named | offered (named or "

@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from nanosysid.dataio import atomic_file, json_text
 from nanosysid.discover import CHANNELS, LIBRARY, VERDICTS, DiscoveryResult
 from nanosysid.discover.analysis import BANDS, REGIMES
-from nanosysid.discover.sources import AGREE
+from nanosysid.discover.sources import AGREE, HISTORY_REPEAT
 from nanosysid.discover.stats import spread
 from nanosysid.effects import SLOW_TIMES
 from nanosysid.metrics import QUANTITIES
@@ -92,20 +92,26 @@ def _verdict_line(f) -> str:
         return (f"**`{f.name}` named** on {', '.join(f.channels)} ({stats}; the best of its round on "
                 f"{100 * ev['stability']:.0f} % of the held-out folds{folds}).")
     if f.verdict == "unstable":
-        was = f"`{f.entry}`" + (f" (or {', '.join(f'`{a}`' for a in f.alternatives[1:])})" if len(f.alternatives) > 1 else "")
-        return (f"**Unstable** on {', '.join(f.channels)}: {was} would be {ev.get('was', 'named')} on all the training "
-                f"flights ({stats}), but the search reaches it on only {ev['folds']['held']} of the "
-                f"{ev['folds']['of']} folds that leave one flight out (not on "
-                f"{', '.join(ev['folds']['missed'])}): one or a few flights carry it, so it is not named. The "
-                "augmented model still uses it.")
+        if f.entry:
+            what = (f"`{f.entry}`" + (f" (or {', '.join(f'`{a}`' for a in f.alternatives[1:])})"
+                                      if len(f.alternatives) > 1 else "") + f" would be {ev.get('was', 'named')}")
+            left = "it is not named, and the augmented model leaves it out"
+        else:
+            what = f"the residual would be called {ev.get('was', 'unnamed')}"
+            left = "no verdict is given" + (", and the augmented model leaves its generic terms out"
+                                            if ev.get("was") == "unnamed" and not ev.get("repeats") else "")
+        return (f"**Unstable** on {', '.join(f.channels)}: {what} on all the training flights ({stats}), but the "
+                f"search reaches it on only {ev['folds']['held']} of the {ev['folds']['of']} folds that leave one "
+                f"flight out (not on {', '.join(ev['folds']['missed'])}): it rests on some of the flights, not on all, "
+                f"so {left}.")
     if f.verdict == "undetermined":
         coef = "; ".join(f"{k} {_fmt(ev['ci'][k][0])} … {_fmt(ev['ci'][k][1])}" for k in f.params)
         return (f"**Undetermined** on {', '.join(f.channels)}: `{f.name}` improves the held-out fit ({stats}), but "
                 f"every coefficient's 95 % interval holds zero ({coef}): the data do not exclude that the effect is "
-                "absent, so it is not named. The augmented model still uses it.")
+                "absent, so it is not named. The augmented model still uses it (every flight carries it).")
     if f.verdict == "ambiguous":
         alts = ", ".join(f"`{a}`" for a in f.alternatives)
-        how = "; ".join(f"`{a}`: {t}" for a, t in ev["separate_by"].items() if t)
+        how = _separate_text(ev["separate_by"])
         return (f"**Ambiguous** on {', '.join(f.channels)}: {alts} explain it equally well ({stats}). The augmented "
                 f"model uses `{ev['used']}`, the one with the lowest held-out residual. Flights that would tell them "
                 f"apart: {how}.")
@@ -130,6 +136,15 @@ def _verdict_line(f) -> str:
              "its terms would make the rollouts on the training flights diverge, so the augmented model leaves them out")
     return (f"**Unnamed** disagreement on {', '.join(f.channels)} ({stats}{folds}): no library entry explains it; a "
             f"sparse fit of generic terms captures it, and {added}.{where}")
+
+
+def _separate_text(separate_by: Mapping[str, str]) -> str:
+    """The flights that would tell rivals apart: each rival's own manoeuvre, or, where the library
+    gives them one manoeuvre, that manoeuvre once (it excites them differently)."""
+    texts = {t for t in separate_by.values() if t}
+    if len(texts) == 1:
+        return f"{texts.pop()}, which excite {' and '.join(f'`{a}`' for a in separate_by)} differently"
+    return "; ".join(f"`{a}`: {t}" for a, t in separate_by.items() if t)
 
 
 def _folds_text(ev: dict[str, Any]) -> str:
@@ -175,7 +190,9 @@ def verdicts_markdown(findings: list[dict[str, Any]]) -> str:
         elif f["verdict"] == "unnamed":
             lines.append(f"- unnamed ({where}): " + " + ".join(f["params"]))
         elif f["verdict"] == "unstable":
-            lines.append(f"- unstable ({where}): `{f['name'] or f['alternatives'][0]}` not reached on every fold")
+            what = f"`{f['name'] or f['alternatives'][0]}`" if f["name"] or f["alternatives"] else \
+                f"{f['evidence'].get('was', 'unnamed')}"
+            lines.append(f"- unstable ({where}): {what} not reached on 80 % of the folds that leave one flight out")
         elif f["verdict"] == "undetermined":
             lines.append(f"- undetermined ({where}): `{f['name']}`, every coefficient's interval holds zero")
         else:
@@ -207,11 +224,38 @@ def figure_lines(label: str, path: str, channel: str, shown: set[str]) -> list[s
             "noise floor.*", ""]
 
 
+def world_lines(world: Mapping[str, Mapping[str, Any]], findings: Sequence[dict[str, Any]]) -> list[str]:
+    """The world's effects beside the verdicts (simulated data: nature is known to the judge,
+    never to discovery): each effect on, its strength, the library entries that describe it and
+    what discovery said of them; then every named or ambiguous entry that describes none of them
+    (a false name). ``world``: effect -> ``{"strength", "described_by"}``; ``findings``:
+    ``result.json``'s."""
+    said: dict[str, str] = {}
+    for f in findings:
+        for n in ([f["name"]] if f["name"] else []) + list(f["alternatives"]):
+            said.setdefault(n, f["verdict"])
+    L = ["## The world's effects beside the verdicts", "",
+         "The simulated world's effects (nature, which discovery never sees) and what discovery said of the library "
+         "entries that describe each; an effect of time (a new realisation every flight) is described by no entry.", "",
+         "| effect of the world | strength | described by | what discovery said |", "|---|---|---|---|"]
+    for name, w in world.items():
+        by = list(w["described_by"])
+        told = [f"`{n}` {said[n]}" for n in by if n in said]
+        L.append(f"| `{name}` | {w['strength']:g} | {', '.join(f'`{n}`' for n in by) or '(no entry: an effect of time)'} "
+                 f"| {'; '.join(told) or 'no entry of it named'} |")
+    described = {n for w in world.values() for n in w["described_by"]}
+    false = sorted(n for n, v in said.items() if v in ("named", "ambiguous") and n not in described)
+    L += ["", ("**Named or ambiguous and in no effect of the world**: " + ", ".join(f"`{n}`" for n in false)
+               if false else "Every entry named or offered as ambiguous describes an effect of the world."), ""]
+    return L
+
+
 def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given to discovery",
-                 references: dict[str, Any] | None = None) -> None:
+                 references: dict[str, Any] | None = None, world: Mapping[str, Mapping[str, Any]] | None = None) -> None:
     """``report.md``, ``result.json``, ``verdicts.md`` (for the rerun recordings) and ``figures/`` in
     ``out``; ``nominal`` says where the nominal model's k_F and k_M come from; ``references``:
-    label -> scores of other models on the same test flights (the benchmark's physics model)."""
+    label -> scores of other models on the same test flights (the benchmark's physics model);
+    ``world`` (simulated data): the world's effects, set beside the verdicts (:func:`world_lines`)."""
     out = Path(out)
     a = result.analysis
     figs = out / "figures"
@@ -274,6 +318,8 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
     L += _per_flight(result)
     L += base_text(result.base)
 
+    if world:
+        L += world_lines(world, [_finding_dict(f) for f in result.findings])
     L += ["## Verdicts", ""]
     if not result.findings:
         L += ["No disagreement stands above the noise floor: the nominal model explains the measurements as well as "
@@ -281,7 +327,7 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
     for f in result.findings:
         L += [_verdict_line(f), ""]
         if f.params:
-            if f.verdict == "unnamed":
+            if f.entry is None:
                 L += ["| generic term (`~`: centred and scaled) | coefficient |", "|---|---|"]
                 L += [f"| {k} | {v:.4g} |" for k, v in f.params.items()]
             else:
@@ -307,7 +353,12 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
         if not h.get("holds", True):
             iv = (f"With the partner run's columns as the instrument, the slope of the residual on its contribution is "
                   f"{h['slope']:.2f} (95 % interval {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; 1 for a real effect)")
-            if h["slope"] > AGREE:
+            if h.get("whole") is False and h["ci"][1] >= 0.5 and h["slope"] <= AGREE:
+                L += [f"**`{d['entry']}` chosen, then dropped**: only part of its fit repeats with the reference. "
+                      f"{iv}, short of the {HISTORY_REPEAT:g} a lag of the rotors' wrench reaches (it repeats whole): "
+                      "what it fitted beyond is the recorded rotor speeds' own noise, a few milliseconds of their "
+                      "residual delay or the controller's answer to a disturbance, none of them a slow actuation.", ""]
+            elif h["slope"] > AGREE:
                 L += [f"**`{d['entry']}` chosen, then dropped**: least squares fitted less than what repeats with the "
                       f"reference. {iv}: its columns also carry the controller's answer to a disturbance, and its "
                       "coefficient is not the effect's.", ""]
@@ -429,6 +480,8 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
         tmp.write_text("\n".join(L))
     summary = result_dict(result)
     summary["references"] = {label: sc.simerr for label, sc in (references or {}).items()}
+    if world:
+        summary["world"] = {k: dict(v) for k, v in world.items()}
     with atomic_file(out / "result.json") as tmp:
         tmp.write_text(json_text(summary))
     with atomic_file(out / "verdicts.md") as tmp:
@@ -442,6 +495,9 @@ def _touching(result: DiscoveryResult, channels: tuple[str, ...]) -> list:
 
 def _finding_phrase(f) -> str:
     ev = f.evidence
+    if f.verdict == "unstable" and not f.entry:
+        return (f"unstable on {', '.join(f.channels)}: would be {ev.get('was', 'unnamed')}, reached on "
+                f"{ev['folds']['held']} of {ev['folds']['of']} flight folds")
     if f.verdict in ("named", "ambiguous", "unstable", "undetermined"):
         what = f"`{f.entry}`" if f.verdict != "ambiguous" else " or ".join(f"`{a}`" for a in f.alternatives)
         coef = "; ".join(f"{k} = {v:.3g} ({ev['ci'][k][0]:.3g} … {ev['ci'][k][1]:.3g})" for k, v in f.params.items())
@@ -591,7 +647,10 @@ def _observations(result: DiscoveryResult, references: dict[str, Any], figs: Pat
                  + (f" ({_reference_text(h)})" if h.get("checked") else "") + ".")
     elif dropped is not None:
         h = dropped["history"]
-        why = ("its instrumental and least-squares estimates disagree: the controller's answer to a disturbance "
+        why = (f"only part of its fit repeats with the reference (short of the {HISTORY_REPEAT:g} a lag reaches): the "
+               "recorded rotor speeds' noise, their residual delay or the controller's answer to a disturbance"
+               if h.get("whole") is False else
+               "its instrumental and least-squares estimates disagree: the controller's answer to a disturbance "
                "moves its columns" if not h.get("holds", True) else
                "added to every state entry of the library at once, it no longer improves the held-out fit: it stood "
                "in for a function of the state")

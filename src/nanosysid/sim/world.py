@@ -61,6 +61,15 @@ TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass of the force an
 # Hz, the roll and pitch torque's corner: the rig's torque residual sits at 0.3-0.4 Hz (its median
 # frequency), where the attitude loop cancels it through the rotor speeds
 TURBULENCE_TORQUE_BAND = (0.4, 0.4, TURBULENCE_BAND)
+# Gusts: the arena's air in steps rather than as a smooth turbulence (a door, a fan, the
+# downwash off a wall the vehicle passes): a body force and roll/pitch torque that hold a random
+# level for a random time (exponential, mean GUST_DWELL) and move to the next within GUST_RISE.
+# Their spectrum falls as 1/f² above 1 / (pi GUST_DWELL) and their edges are sharp, a shape and
+# spectrum the turbulence's record has not; off in the default world (the worlds check's family)
+GUST_FORCE = (4.0e-3, 4.0e-3, 0.0)  # N, std per body axis
+GUST_TORQUE = (4.0e-4, 4.0e-4, 0.0)  # N m, std per body axis
+GUST_DWELL = 2.0  # s
+GUST_RISE = 0.1  # s
 # The paper's "unmodelled actuation": the thrust a rotor gives at a measured speed is not a fixed
 # k_F Omega^2; the controller answers the fluctuation with the rotor speeds, so the measured speeds
 # tell less of the torque than the quadratic model says. Its size, like the turbulence's, is set
@@ -90,6 +99,26 @@ def _unit_band_noise(key: Sequence[int], t_end: float, channels: int, band: floa
     impulse = lfilter(b, a, np.r_[1.0, np.zeros(20 * int(np.ceil(REALISATION_RATE / band)))])
     white = np.random.default_rng(list(key)).standard_normal((n, channels))
     return lfilter(b, a, white, axis=0) / np.sqrt(np.sum(impulse**2))
+
+
+def _unit_steps(key: Sequence[int], t_end: float, channels: int, rate: float) -> np.ndarray:
+    """``(N, channels)`` samples on the realisation grid up to ``t_end``: each channel holds a
+    standard normal level for an exponential time of mean ``1 / rate`` s, then steps to the next
+    through a first-order lag of :data:`GUST_RISE` s. Each channel draws (time held, next level)
+    pairs from its own stream in blocks, so a longer flight's realisation begins with a shorter
+    one's."""
+    n = int(np.ceil((t_end - REALISATION_START) * REALISATION_RATE)) + 2
+    out = np.empty((n, channels))
+    for c in range(channels):
+        rng = np.random.default_rng([*key, c])
+        first, held, levels, total = rng.standard_normal(), [], [], 0.0
+        while total < n:
+            held.append(rng.exponential(REALISATION_RATE / rate, 64))  # samples each level holds
+            levels.append(rng.standard_normal(64))
+            total += held[-1].sum()
+        ends = np.cumsum(np.concatenate(held))
+        out[:, c] = np.r_[first, np.concatenate(levels)][np.searchsorted(ends, np.arange(n), side="right")]
+    return _lowpass(out, 1.0 / REALISATION_RATE, GUST_RISE)
 
 
 def _lowpass(x: np.ndarray, dt: float, tau: float) -> np.ndarray:
@@ -130,12 +159,15 @@ class Realisation:
         band: Corner (Hz) of the second-order low-pass, one for all channels or one per channel.
         stream: Index of its random stream within the flight's key (each effect its own).
         apply: ``(channels (..., k), omega (..., 4), mixer_t (4, 4)) -> wrench (..., 6)``.
+        draw: ``(key, t_end, channels, band) -> (N, channels)`` unit-std samples on the
+            realisation grid: band-limited noise, or steps (``band`` their rate, 1/s).
     """
 
     scale: tuple[float, ...]
     band: float | tuple[float, ...]
     stream: int
     apply: Callable[[Tensor, Tensor, Tensor], Tensor]
+    draw: Callable[[Sequence[int], float, int, float], np.ndarray] = _unit_band_noise
 
 
 @dataclass(frozen=True)
@@ -333,6 +365,14 @@ RECORDS: tuple[WorldEffect, ...] = (
         f"{UNSTEADY_THRUST_BAND:g} Hz, independent per rotor; a new realisation every flight",
         "time and rotor speeds: a new random realisation every flight", default=1.0,
         realisation=Realisation((UNSTEADY_THRUST,) * 4, UNSTEADY_THRUST_BAND, 2, _unsteady_wrench)),
+    WorldEffect(
+        "gusts", "a body force and roll/pitch torque in random steps: the arena's air gusting",
+        f"body force and roll/pitch torque in steps (the arena's air gusting): std ({_mm(GUST_FORCE)}) mN and "
+        f"({', '.join(f'{x:g}' for x in GUST_TORQUE)}) N m, each level held for an exponential time of mean "
+        f"{GUST_DWELL:g} s and reached within {GUST_RISE:g} s; a new realisation every flight",
+        "time: a new random realisation every flight", default=0.0,
+        realisation=Realisation((*GUST_FORCE, *GUST_TORQUE), 1.0 / GUST_DWELL, 3, lambda d, omega, mixer_t: d,
+                                _unit_steps)),
 )
 
 # name -> record; :func:`register` adds to it
@@ -458,7 +498,7 @@ class World:
                     # one white noise per stream, filtered once per band: a channel's draw is the
                     # same whatever the other channels' bands
                     here = bands == b
-                    noise = _unit_band_noise([*key, r.stream], t_end, len(r.scale), float(b))
+                    noise = r.draw([*key, r.stream], t_end, len(r.scale), float(b))
                     out[:, np.arange(cols.start, cols.stop)[here]] = noise[:, here] * scale[here]
         return out
 
