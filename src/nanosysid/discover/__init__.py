@@ -223,7 +223,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
                                                    share=share, progress=progress)
         stability.apply(findings, folds_out, search, selection)
     undetermined(findings)
-    selection, fit, terms, fits = _named_only(findings, search, selection, fit, rest, v, inertia_z_range)
+    selection, fit, terms, fits = _without_unstable(findings, search, selection, fit, rest, v, inertia_z_range)
     model, augmented_vehicle, base = assemble(v, selection.chosen, fit.coef, selection.delay, terms, findings,
                                               search, fit.per_fold, fits, horizon=horizon, batch_size=batch_size)
 
@@ -262,14 +262,15 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     return result
 
 
-def _named_only(findings: Sequence[Finding], search: Search, selection, fit, rest, vehicle: Vehicle,
-                inertia_z_range) -> tuple[Any, Any, dict[str, float], list]:
-    """The selection, its fit and the generic terms without what only a few flights carry: an
-    unstable entry leaves the augmented model and its name, and so do the generic terms of an
-    unstable unnamed channel. The kept entries are fitted again without the ones left out, and
-    their findings take the refitted values (their intervals, from fits that had the left-out
-    entry as one more column, stay as wide). An undetermined entry stays: every flight carries
-    it, and its fit is the best estimate even where its interval cannot exclude zero."""
+def _without_unstable(findings: Sequence[Finding], search: Search, selection, fit, rest, vehicle: Vehicle,
+                      inertia_z_range) -> tuple[Any, Any, dict[str, float], list]:
+    """The selection, its fit and the generic terms without what rests on some of the training
+    flights only: an unstable entry leaves the augmented model and its name, and so do the
+    generic terms of an unstable unnamed channel. The kept entries are fitted again without the
+    ones left out, and their findings take the refitted values (their intervals, from fits that
+    had the left-out entry as one more column, stay as wide). An undetermined entry stays: every
+    flight carries it, and its fit is the best estimate even where its interval cannot exclude
+    zero."""
     out = {f.entry for f in findings if f.verdict == UNSTABLE and f.entry}
     channels = {c for f in findings if f.verdict == UNSTABLE and f.evidence.get("was") == "unnamed"
                 and not f.evidence.get("repeats") for c in f.channels}

@@ -43,7 +43,7 @@ def violations(record: Mapping[str, Any]) -> list[str]:
     - a residual called not a function of the state is at least the noise floor in size and
       does not mostly repeat with the reference;
     - the augmented model's name lists exactly the named, ambiguous and undetermined findings'
-      entries (an unstable one, which a few flights carry, is left out).
+      entries (an unstable one, which rests on some of the flights only, is left out).
     """
     out: list[str] = []
     alpha, floor = float(record["alpha"]), float(record["floor"])

@@ -77,7 +77,7 @@ def apply(findings: Sequence[Finding], rows: Sequence[dict[str, Any]], search: S
     """Each finding's fold stability into its evidence (``folds``: held on, out of, the
     flights whose fold does not reach it); a finding of any verdict that holds on fewer than
     :data:`HOLD` of the folds becomes ``unstable`` (``evidence["was"]``: the verdict it would
-    have had): one or a few flights carry it. A named entry's interval is widened to
+    have had): it rests on some of the flights, not on all. A named entry's interval is widened to
     reach its interval from flights (the folds' jackknife), kept as ``ci_flights``."""
     if not rows:
         return
