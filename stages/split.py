@@ -3,6 +3,7 @@
 from omegaconf import DictConfig
 
 from nanosysid import splitting
+from nanosysid.consistency import Expect
 from stages.common import run_stage
 
 
@@ -13,6 +14,7 @@ def main(cfg: DictConfig) -> None:
         train=list(cfg.split.train),
         test=list(cfg.split.test),
         horizon=cfg.eval.horizon,
+        expect=Expect(float(cfg.vehicle.mass), float(cfg.vehicle.k_f), float(cfg.vehicle.gravity)),
     )
 
 

@@ -12,7 +12,7 @@ import pytest
 
 import yaml
 
-from nanosysid.depgraph import ONE_MODEL, imported_files, stages, written_deps
+from nanosysid.depgraph import ONE_MODEL, PIPELINES, imported_files, stages, written_deps
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -24,21 +24,28 @@ def uncovered(files: set[Path], deps: list[str]) -> list[str]:
                   if not any(f == p or p in f.parents for p in paths))
 
 
+def every_stage(root: Path = ROOT) -> dict[str, tuple[str, list[str]]]:
+    """Every pipeline's stages, :func:`stages`' entries under DVC's names for them (``train``,
+    ``campaign/dvc.yaml:campaign``)."""
+    return {(name if pipeline == "dvc.yaml" else f"{pipeline}:{name}"): entry
+            for pipeline in PIPELINES for name, entry in stages(root, pipeline).items()}
+
+
 def expanded() -> dict[str, list[str]]:
-    """Every stage of dvc.yaml as DVC runs it (``train@lstm``), with its deps resolved."""
+    """Every stage of every pipeline as DVC runs it (``train@lstm``), with its deps resolved."""
     from dvc.repo import Repo
 
     with Repo(str(ROOT)) as repo:
         return {s.addressing: [str(Path(d.def_path)) for d in s.deps] for s in repo.index.stages}
 
 
-@pytest.mark.parametrize("stage", sorted(stages()))
+@pytest.mark.parametrize("stage", sorted(every_stage()))
 def test_stage_depends_on_every_module_it_imports(stage):
-    module, deps = stages()[stage]
+    module, deps = every_stage()[stage]
     # a stage that runs one model imports the networks by name at run time: that model's own is
     # its code entry (checked with the resolved stages below), the others are no dependency
     missing = uncovered(imported_files(module, loaded_by_name=module not in ONE_MODEL), deps)
-    assert not missing, f"dvc.yaml: stage {stage!r} imports {missing} but does not depend on them"
+    assert not missing, f"stage {stage!r} imports {missing} but does not depend on them"
 
 
 def test_a_stage_of_one_model_depends_on_that_models_code_and_no_other_networks():
@@ -48,7 +55,7 @@ def test_a_stage_of_one_model_depends_on_that_models_code_and_no_other_networks(
     checked = 0
     for stage, deps in expanded().items():
         script, _, name = stage.partition("@")
-        if stages()[script][0] not in ONE_MODEL:
+        if every_stage()[script][0] not in ONE_MODEL:
             continue
         # a stage of the models it names: one (its foreach item), or the window track's
         names = [name] if name else params["window"]["models"]
@@ -75,9 +82,11 @@ def test_lazy_imports_are_followed():
     assert "src/nanosysid/dataio.py" in files
 
 
-def test_dvc_yaml_deps_are_the_import_graphs():
-    text = (ROOT / "dvc.yaml").read_text()
-    assert written_deps(text) == text, "dvc.yaml's deps differ from the import graph: python -m nanosysid.depgraph write"
+@pytest.mark.parametrize("pipeline", PIPELINES)
+def test_the_pipelines_deps_are_the_import_graphs(pipeline):
+    text = (ROOT / pipeline).read_text()
+    assert written_deps(text, pipeline=pipeline) == text, \
+        f"{pipeline}'s deps differ from the import graph: python -m nanosysid.depgraph write"
 
 
 def test_nothing_trained_or_measured_before_training_imports_discovery_or_the_simulator():
@@ -97,15 +106,15 @@ def test_discovery_never_imports_the_simulated_world():
 
 
 def copied(tmp_path: Path, env: dict):
-    """A copy of the project's code, settings and ``dvc.lock`` (no outputs) as its own git
-    repository, and a function running a command in it."""
+    """A copy of the project's code, settings and pipelines with their locks (no outputs) as its
+    own git repository, and a function running a command in it."""
     import shutil
     import subprocess
 
     repo = tmp_path / "repo"
     repo.mkdir()
-    for item in ("dvc.yaml", "dvc.lock", "params.yaml", "params-rig.yaml", "conf", "stages", "src", ".dvcignore",
-                 ".gitignore"):
+    for item in ("dvc.yaml", "dvc.lock", "campaign", "params.yaml", "params-rig.yaml", "conf", "stages", "src",
+                 ".dvcignore", ".gitignore"):
         (shutil.copytree if (ROOT / item).is_dir() else shutil.copy)(ROOT / item, repo / item,
                                                                       **({"ignore": shutil.ignore_patterns("__pycache__")}
                                                                          if (ROOT / item).is_dir() else {}))
@@ -139,9 +148,10 @@ def test_adding_the_readmes_example_model_reruns_its_own_stages_the_report_and_t
     (repo / "conf/config.yaml").write_text(text.replace("\nlearned:\n", f"\nlearned:\n{learned_line}\n", 1))
     config.compose([], out=repo / "params.yaml", conf_dir=repo / "conf")
     config.compose([], out=repo / "params-rig.yaml", conf_dir=repo / "conf", root="rig")
-    (repo / "dvc.yaml").write_text(written_deps((repo / "dvc.yaml").read_text(), root=repo))
+    for pipeline in PIPELINES:
+        (repo / pipeline).write_text(written_deps((repo / pipeline).read_text(), root=repo, pipeline=pipeline))
     # the suite's dependency checks hold in the copy
-    for stage, (module, deps) in stages(repo).items():
+    for stage, (module, deps) in every_stage(repo).items():
         files = imported_files(module, repo, loaded_by_name=module not in ONE_MODEL)
         paths = [(repo / d).resolve() for d in deps]
         assert all(any(f == p or p in f.parents for p in paths) for f in files), stage
@@ -165,11 +175,13 @@ def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tm
     status = json.loads(sh("dvc", "status", "--json"))
     stale = {name.split("@")[0] for name, entries in status.items() for e in entries
              if isinstance(e, dict) and module in e.get("changed deps", {})}
-    importers = {name for name, (script, _) in stages().items() if ROOT / module in imported_files(script)}
+    importers = {name for name, (script, _) in every_stage().items() if ROOT / module in imported_files(script)}
     assert stale == importers
     if "discover" in module:
-        # discovery, what scores, exports and reports its model, and the campaign that judges it
-        assert "discover" in stale and not stale & {"train", "identify", "quality", "split", "simulate", "extract"}
+        # discovery, what scores, exports and reports its model, and the campaign (its own
+        # pipeline) that judges it
+        assert {"discover", "campaign/dvc.yaml:campaign"} <= stale
+        assert not stale & {"train", "identify", "quality", "split", "simulate", "extract"}
 
 
 def test_the_committed_lock_records_the_committed_code():
@@ -181,10 +193,12 @@ def test_the_committed_lock_records_the_committed_code():
 
     tracked = set(subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
                                  check=True).stdout.split())
-    lock = yaml.safe_load((ROOT / "dvc.lock").read_text())
+    entries = [(f"{pipeline}:{name}", stage) for pipeline in PIPELINES
+               for name, stage in yaml.safe_load((ROOT / pipeline).with_name("dvc.lock").read_text())["stages"].items()]
+    assert {name.partition(":")[0] for name, _ in entries} == set(PIPELINES), "a pipeline's dvc.lock is empty"
     md5 = {}
     stale = []
-    for name, stage in lock["stages"].items():
+    for name, stage in entries:
         for dep in stage.get("deps", []):
             path = dep["path"]
             if path not in tracked or "md5" not in dep:
@@ -194,4 +208,4 @@ def test_the_committed_lock_records_the_committed_code():
             if dep["md5"] != md5[path]:
                 stale.append(f"{name}: {path}")
     assert md5, "no tracked file dependency found in dvc.lock"
-    assert not stale, f"dvc.lock records other versions of: {', '.join(stale[:10])} (+{max(len(stale) - 10, 0)})"
+    assert not stale, f"a dvc.lock records other versions of: {', '.join(stale[:10])} (+{max(len(stale) - 10, 0)})"

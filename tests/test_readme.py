@@ -227,7 +227,7 @@ def test_the_readmes_slurm_experiment_composes_and_says_what_this_machine_lacks(
     from nanosysid import config, launcher
     from nanosysid.errors import ConfigError
 
-    line, = [x for x in readme_commands("dvc exp run -S launcher=slurm")]
+    line, = [x for x in readme_commands("dvc exp run campaign/dvc.yaml -S launcher=slurm")]
     overrides = re.findall(r"-S (\S+)", line)
     assert overrides == ["launcher=slurm", "launcher.partition=cpu", "campaign.worlds=500"]
     cfg = yaml.safe_load(config.compose_text(overrides))
@@ -358,3 +358,42 @@ def test_the_hypotheses_lines_are_the_reports_verdicts_checks_and_worlds_table(t
     assert "| com_offset | 20 |" in lines and "After." not in lines
     # without the simulated pipeline's report, the rig's lines alone
     assert not any("world family" in line for line in readme.hypotheses_lines(rig, tmp_path / "absent.md"))
+
+
+def test_readme_campaign_section_is_the_summary_the_campaigns_lock_records(monkeypatch):
+    monkeypatch.chdir(ROOT)  # the lock names its outputs relative to the project's root
+    text = (ROOT / "README.md").read_text()
+    part = text[text.index(readme.CAMPAIGN_BEGIN):text.index(readme.CAMPAIGN_END) + len(readme.CAMPAIGN_END)]
+    sources = dict(re.findall(r"(\S+) md5 ([0-9a-f]{32}(?:\.dir)?)", part))
+    lock = yaml.safe_load((ROOT / "campaign" / "dvc.lock").read_text())
+    (out,) = lock["stages"]["campaign@sim"]["outs"]
+    assert sources["reports/campaign"] == out["md5"]
+    summary = Path("reports/campaign/summary.json")
+    if summary.exists() and hashlib.md5(summary.read_bytes()).hexdigest() == sources[summary.as_posix()]:
+        record = Path("reports/campaign-repro.json")
+        assert part == readme.campaign_section(summary, Path("campaign/dvc.lock"), record)
+
+
+def test_the_campaign_section_counts_by_hand_and_refuses_a_summary_its_lock_does_not_record(tmp_path):
+    import pytest
+
+    out = tmp_path / "reports" / "campaign"
+    out.mkdir(parents=True)
+    summary = {"worlds": 10, "failed": 1, "named": 8, "precision": 0.875, "clean_worlds": 4, "clean_without_finding": 0.75,
+               "out_of_library_worlds": 2, "out_of_library_without_false_name": 1.0, "coefficients_checked": 20,
+               "coefficients_covered": 0.9, "state_worlds": 3, "half_gap_closed": 2 / 3, "gap_closed_median": 0.5,
+               "families": {"thrust_lag": {"worlds": 5, "slow_actuation_named": 4, "stateless": 0, "of_time": 1}}}
+    (out / "summary.json").write_text(json.dumps(summary))
+    lock = tmp_path / "dvc.lock"
+    lock.write_text(yaml.safe_dump({"schema": "2.0", "stages": {"campaign@sim": {
+        "outs": [{"path": out.as_posix(), "md5": "ab" + "0" * 30 + ".dir"}]}}}))
+    cache = tmp_path / "cache"
+    text = readme.campaign_section(out / "summary.json", lock, None, cache)  # no listing in the cache: taken
+    assert "named verdicts: 8, right in 87.5 %" in text and "without any finding in 75 %" in text
+    assert "interval covering it in 90 %" in text and "closed in 66.7 % (median 50 %)" in text
+    assert "| thrust_lag | 5 | 4 | 0 | 1 |" in text and "ab" + "0" * 30 + ".dir" in text
+    listing = cache / "files" / "md5" / "ab" / ("0" * 30 + ".dir")
+    listing.parent.mkdir(parents=True)
+    listing.write_text(json.dumps([{"relpath": "summary.json", "md5": "f" * 32}]))
+    with pytest.raises(ValueError, match="is not the one .* records"):
+        readme.campaign_section(out / "summary.json", lock, None, cache)

@@ -117,6 +117,25 @@ def test_independent_stages_of_a_dvc_pipeline_run_side_by_side_and_dvc_records_t
     assert json.loads((root / "rec.json").read_text()) == record  # the record is the last run that ran a stage
 
 
+def test_each_pipeline_file_runs_apart_and_the_run_names_what_the_other_would_rerun(tmp_path, env):
+    root = tmp_path / "toy"
+    _toy_repo(root, env, campaign=True)
+    r = _repro(root, env)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert not (root / "e.txt").exists() and not (root / "campaign" / "dvc.lock").exists()
+    assert "campaign/dvc.yaml: would rerun e (`make campaign`)" in r.stdout, r.stdout
+    lock = (root / "dvc.lock").read_text()
+    c = _repro(root, env, "--pipeline", "campaign/dvc.yaml")
+    assert c.returncode == 0, c.stdout + c.stderr
+    assert (root / "e.txt").exists() and "e:" in (root / "campaign" / "dvc.lock").read_text()
+    assert (root / "dvc.lock").read_text() == lock and "dvc.yaml: up to date" in c.stdout, c.stdout
+    record = json.loads((root / "rec.json").read_text())
+    assert list(record["stages"]) == ["campaign/dvc.yaml:e"] and "--pipeline campaign/dvc.yaml" in record["command"]
+    status = subprocess.run([sys.executable, "-m", "dvc", "status"], cwd=root, env=env, capture_output=True,
+                            text=True)
+    assert "up to date" in status.stdout, status.stdout
+
+
 def test_a_failing_stage_stops_the_run_with_its_log_and_runs_nothing_after_it(tmp_path, env):
     root = tmp_path / "toy"
     _toy_repo(root, env, fail="c")

@@ -27,8 +27,10 @@ def env() -> dict[str, str]:
     return dvc_env(PYTHONPATH=src + os.pathsep + os.environ.get("PYTHONPATH", ""))
 
 
-def toy_repo(root: Path, env: dict, fail: str = "") -> None:
-    """The pipeline in a new git and DVC repository at ``root``; the stage ``fail`` exits 3."""
+def toy_repo(root: Path, env: dict, fail: str = "", campaign: bool = False) -> None:
+    """The pipeline in a new git and DVC repository at ``root``; the stage ``fail`` exits 3. With
+    ``campaign``, a second pipeline file ``campaign/dvc.yaml`` (run at the root, as the
+    project's) holds one stage ``e``."""
     root.mkdir()
     (root / "stage.py").write_text(STAGE)
     stages = {"a": ([], 0.0), "b": (["a.txt"], 2.0), "c": (["a.txt"], 2.0), "d": (["b.txt", "c.txt"], 0.0)}
@@ -38,6 +40,11 @@ def toy_repo(root: Path, env: dict, fail: str = "") -> None:
         lines += [f"  {name}:", f"    cmd: {sys.executable} stage.py {name} {mode} {sleep}",
                   "    deps: [stage.py" + "".join(f", {d}" for d in deps) + "]", f"    outs: [{name}.txt]"]
     (root / "dvc.yaml").write_text("\n".join(lines) + "\n")
+    if campaign:
+        (root / "campaign").mkdir()
+        (root / "campaign" / "dvc.yaml").write_text(
+            f"stages:\n  e:\n    wdir: ..\n    cmd: {sys.executable} stage.py e ok 0.0\n    deps: [stage.py]\n"
+            "    outs: [e.txt]\n")
     init(root, env)
 
 
@@ -53,9 +60,9 @@ def start(root: Path, env: dict) -> subprocess.Popen:
                             cwd=root, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
-def repro(root: Path, env: dict) -> subprocess.CompletedProcess:
-    """The runner, run to its end."""
-    return subprocess.run([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json"],
+def repro(root: Path, env: dict, *args: str) -> subprocess.CompletedProcess:
+    """The runner, run to its end (``args`` after its own)."""
+    return subprocess.run([sys.executable, "-m", "nanosysid.repro", "--jobs", "2", "--out", "rec.json", *args],
                           cwd=root, env=env, capture_output=True, text=True)
 
 

@@ -1,5 +1,5 @@
 """The stages' code dependencies, from the import graph: what every ``python -m stages.<name>``
-imports of the project, written into the ``deps:`` lists of ``dvc.yaml``.
+imports of the project, written into the ``deps:`` lists of the pipelines (:data:`PIPELINES`).
 
 Imports are read from the source (``ast``), lazy imports inside functions included, and
 followed through the project's own modules (``nanosysid`` and ``stages``); importing a
@@ -11,8 +11,8 @@ the edited code and no other.
 
 Command line::
 
-    python -m nanosysid.depgraph write    # rewrite the code entries of dvc.yaml's deps lists
-    python -m nanosysid.depgraph check    # exit 1 when dvc.yaml differs from the import graph
+    python -m nanosysid.depgraph write    # rewrite the code entries of every pipeline's deps lists
+    python -m nanosysid.depgraph check    # exit 1 when a pipeline differs from the import graph
 """
 
 from __future__ import annotations
@@ -28,11 +28,14 @@ from typing import Sequence
 import yaml
 
 __all__ = ["module_file", "direct_imports", "by_name", "imported_files", "stages", "needed_deps", "written_deps",
-           "ONE_MODEL"]
+           "ONE_MODEL", "PIPELINES"]
 
 OWN = ("nanosysid", "stages")
 ROOT = Path(__file__).resolve().parents[2]  # the project: src/nanosysid/depgraph.py
 CODE = ("src/", "stages/")  # deps entries that are code, which the graph decides
+# the project's pipelines, each with its own lock: the benchmark's (`make repro`) and the campaign's
+# (`make campaign`); every stage runs at the project's root (the campaign's ``wdir: ..``)
+PIPELINES = ("dvc.yaml", "campaign/dvc.yaml")
 
 
 def _src(root: Path) -> Path:
@@ -115,9 +118,9 @@ def imported_files(module: str, root: Path = ROOT, *, loaded_by_name: bool = Tru
     return {module_file(m, root) for m in seen}
 
 
-def stages(root: Path = ROOT) -> dict[str, tuple[str, list[str]]]:
-    """``{stage: (script module, deps)}`` of ``dvc.yaml``."""
-    spec = yaml.safe_load((root / "dvc.yaml").read_text())["stages"]
+def stages(root: Path = ROOT, pipeline: str = "dvc.yaml") -> dict[str, tuple[str, list[str]]]:
+    """``{stage: (script module, deps)}`` of one pipeline file (``dvc.yaml``, :data:`PIPELINES`)."""
+    spec = yaml.safe_load((root / pipeline).read_text())["stages"]
     out = {}
     for name, s in spec.items():
         body = s.get("do", s)
@@ -133,10 +136,11 @@ def needed_deps(module: str, root: Path = ROOT) -> list[str]:
     return sorted(str(f.relative_to(root)) for f in imported_files(module, root, loaded_by_name=module not in ONE_MODEL))
 
 
-def written_deps(text: str, root: Path = ROOT) -> str:
-    """``dvc.yaml``'s text with the code entries of every stage's ``deps`` list replaced by the
-    import graph's (the other entries, data and settings files, kept in their order after them)."""
-    modules = {name: module for name, (module, _) in stages(root).items()}
+def written_deps(text: str, root: Path = ROOT, pipeline: str = "dvc.yaml") -> str:
+    """A pipeline file's text (``pipeline``, whose text is ``text``) with the code entries of every
+    stage's ``deps`` list replaced by the import graph's (the other entries, data and settings
+    files, kept in their order after them)."""
+    modules = {name: module for name, (module, _) in stages(root, pipeline).items()}
     lines = text.splitlines(keepends=True)
     out: list[str] = []
     stage = None
@@ -167,18 +171,23 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m nanosysid.depgraph", description=__doc__.split("\n")[0])
     parser.add_argument("command", choices=["write", "check"])
     args = parser.parse_args(argv)
-    path = ROOT / "dvc.yaml"
-    text = path.read_text()
-    new = written_deps(text)
-    if args.command == "check":
-        if new != text:
-            print("dvc.yaml's deps differ from the import graph; run `python -m nanosysid.depgraph write`",
-                  file=sys.stderr)
-            return 1
-        return 0
-    if new != text:
-        path.write_text(new)
-    print(f"dvc.yaml: deps {'rewritten from' if new != text else 'match'} the import graph")
+    differ = []
+    for pipeline in PIPELINES:
+        path = ROOT / pipeline
+        text = path.read_text()
+        new = written_deps(text, pipeline=pipeline)
+        if new == text:
+            if args.command == "write":
+                print(f"{pipeline}: deps match the import graph")
+            continue
+        differ.append(pipeline)
+        if args.command == "write":
+            path.write_text(new)
+            print(f"{pipeline}: deps rewritten from the import graph")
+    if args.command == "check" and differ:
+        print(f"{', '.join(differ)}: deps differ from the import graph; run `python -m nanosysid.depgraph write`",
+              file=sys.stderr)
+        return 1
     return 0
 
 

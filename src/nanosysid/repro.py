@@ -8,7 +8,8 @@ record its stage, not while the stage's command runs. ``python -m nanosysid.repr
 runs every stage of ``dvc.yaml`` that way, as ``dvc --wait-for-lock repro --single-item
 <stage>``, once every stage it depends on has finished, at most ``jobs`` at a time, in the
 order whose schedule, played out with the stage times of the last record, ends first
-(:func:`best_order`).
+(:func:`best_order`). ``--pipeline campaign/dvc.yaml`` runs the campaign's pipeline instead
+(``make campaign``); each run ends with a line on what the other pipelines would rerun.
 
 What it writes is what ``dvc repro`` writes: the same ``dvc.lock``, outputs and run cache; a
 stage's bytes never depend on what runs beside it (each stage pins its own thread counts,
@@ -75,10 +76,11 @@ from typing import Callable, Mapping  # noqa: E402
 from tqdm import tqdm  # noqa: E402
 
 from nanosysid import cachecheck  # noqa: E402
+from nanosysid.depgraph import PIPELINES  # noqa: E402
 from nanosysid.report.runtimes import SKIPPED, write_record  # noqa: E402
 
 __all__ = ["StageRun", "stage_graph", "critical_order", "best_order", "makespan", "run_graph", "keep_whole",
-           "repair_lock", "repair_rwlock", "stop_orphans", "RunnerBusy", "main"]
+           "repair_lock", "repair_rwlock", "stop_orphans", "RunnerBusy", "lock_of", "others_status", "main"]
 
 LOG_DIR = Path(".dvc/tmp/repro")
 LOCK = Path("dvc.lock")
@@ -98,15 +100,43 @@ class StageRun:
     skipped: bool = False
 
 
-def stage_graph(root: Path = Path(".")) -> dict[str, set[str]]:
-    """Each stage of the repository's pipelines (``train@lstm``) and the stages it depends on,
-    as DVC's own index sees them; stages without a command (``dvc add``-ed data) are left out."""
+def stage_graph(root: Path = Path("."), pipeline: str = "dvc.yaml") -> dict[str, set[str]]:
+    """Each stage of one pipeline file of the repository (``train@lstm``;
+    ``campaign/dvc.yaml:campaign@sim``) and the stages of that file it depends on, as DVC's own
+    index sees them; stages without a command (``dvc add``-ed data) are left out."""
     from dvc.repo import Repo
 
     with Repo(str(root)) as repo:
         graph = repo.index.graph  # an edge runs from a stage to a stage it depends on
-        runnable = {s for s in graph.nodes if getattr(s, "cmd", None)}
+        path = (Path(repo.root_dir) / pipeline).resolve()
+        runnable = {s for s in graph.nodes if getattr(s, "cmd", None) and Path(s.dvcfile.path).resolve() == path}
         return {s.addressing: {d.addressing for d in graph.successors(s) if d in runnable} for s in runnable}
+
+
+# the command that runs each pipeline, for the line on what the others would rerun
+COMMANDS = {"dvc.yaml": "make repro", "campaign/dvc.yaml": "make campaign"}
+
+
+def lock_of(pipeline: str) -> tuple[Path, Path]:
+    """A pipeline file's ``dvc.lock`` and the path of its last whole copy."""
+    lock = Path(pipeline).parent / "dvc.lock"
+    return lock, LOG_DIR / (lock.as_posix().replace("/", "_") + ".whole")
+
+
+def others_status(pipeline: str, root: Path = Path(".")) -> list[str]:
+    """One line per other pipeline of :data:`~nanosysid.depgraph.PIPELINES`: up to date, or the
+    stages it would rerun and the command that runs them (``dvc status``'s answer)."""
+    from dvc.repo import Repo
+
+    lines = []
+    with Repo(str(root)) as repo:
+        for other in PIPELINES:
+            if other == pipeline or not (Path(repo.root_dir) / other).is_file():
+                continue
+            stale = sorted(name.partition(":")[2] or name for name in repo.status(targets=[other]))
+            lines.append(f"{other}: " + (f"would rerun {', '.join(stale)} (`{COMMANDS.get(other, 'dvc repro ' + other)}`)"
+                                         if stale else "up to date"))
+    return lines
 
 
 def critical_order(upstream: Mapping[str, set[str]], seconds: Mapping[str, float], default: float = 1.0) -> list[str]:
@@ -483,9 +513,12 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0].strip("`: "))
     p.add_argument("--jobs", type=int, default=2, help="stages at a time (default 2)")
     p.add_argument("--out", type=Path, default=Path("reports/repro.json"), help="the record of stage times")
+    p.add_argument("--pipeline", default="dvc.yaml", choices=PIPELINES,
+                   help="the pipeline file whose stages run (default dvc.yaml, the benchmark's)")
     a = p.parse_args(argv)
     if a.jobs < 1:
         p.error(f"--jobs must be at least 1, got {a.jobs}")
+    lock, good = lock_of(a.pipeline)
     from dvc.exceptions import DvcException
 
     # a killed run's calls stopped first: they may be writing dvc.lock, which the graph reads
@@ -496,7 +529,8 @@ def main(argv: list[str] | None = None) -> int:
         except RunnerBusy as e:
             print(f"error: {e}", file=sys.stderr)
             return 2
-        put_back, cleared = repair_lock(), repair_rwlock()
+        put_back = any([repair_lock(*lock_of(pipeline)) for pipeline in PIPELINES])
+        cleared = repair_rwlock()
         try:
             bad = cachecheck.damaged()
         except DvcException:  # a repository DVC cannot open: the graph below says why, in DVC's words
@@ -511,18 +545,19 @@ def main(argv: list[str] | None = None) -> int:
               + ("; DVC's .dvc/tmp/rwlock, cut short, was removed" if cleared else "")
               + "; going on from there", file=sys.stderr)
     try:
-        upstream = stage_graph()
+        upstream = stage_graph(pipeline=a.pipeline)
     except DvcException as e:  # no repository, a malformed dvc.yaml: DVC's own message, no traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
     upstream = _with_rig(upstream)
     LOG_DIR.mkdir(parents=True, exist_ok=True)
     # this machine's last run where there is one, else the times the repository records
-    order = best_order(upstream, _last_times(a.out) or _last_times(RECORDED), jobs=a.jobs)
+    order = best_order(upstream, _last_times(a.out) or _last_times(RECORDED.with_name(a.out.name.replace(".last", ""))),
+                       jobs=a.jobs)
     env = dict(os.environ)
     if a.jobs > 1:
         env["OMP_WAIT_POLICY"] = "PASSIVE"
-    stages = _DvcStages(env, LOG_DIR)
+    stages = _DvcStages(env, LOG_DIR, lock, good)
     t0 = time.monotonic()
     # an interruption is the runner's to pass on, also where its starter ignores SIGINT (`make repro &`)
     signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -532,7 +567,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         stages.stop()
         stages.close()
-        put_back, cleared = repair_lock(), repair_rwlock()
+        put_back, cleared = repair_lock(lock, good), repair_rwlock()
         print("\ninterrupted: the stages that were running stopped unrecorded"
               + ("; dvc.lock, cut short, was put back as it was after the last stage that ended" if put_back else "")
               + ("; DVC's .dvc/tmp/rwlock, cut short, was removed" if cleared else "")
@@ -548,7 +583,14 @@ def main(argv: list[str] | None = None) -> int:
     ran = {s: r.seconds for s, r in done.items() if not r.skipped}
     skipped = sorted(s for s, r in done.items() if r.skipped)
     print(f"{len(ran)} stages ran, {len(skipped)} skipped or cached, in {total:g} s")
-    write_record(a.out, f"python -m nanosysid.repro --jobs {a.jobs}",
+    try:
+        for line in others_status(a.pipeline):
+            print(line)
+    except DvcException as e:
+        print(f"the other pipelines' status is not known: {e}", file=sys.stderr)
+    command = f"python -m nanosysid.repro --jobs {a.jobs}" + (f" --pipeline {a.pipeline}" if a.pipeline != "dvc.yaml"
+                                                              else "")
+    write_record(a.out, command,
                  {"jobs": a.jobs, "stages": {s: ran[s] for s in order if s in ran}, "skipped": skipped, "total_s": total})
     return 0
 

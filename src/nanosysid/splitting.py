@@ -7,6 +7,7 @@ import shutil
 from pathlib import Path
 from typing import Sequence
 
+from nanosysid.consistency import Expect, check_flight
 from nanosysid.dataio import atomic_dir, check_distinct, flight_catalog, json_text, parse_flight_name, read_flight_csv
 from nanosysid.errors import ConfigError, DataError
 
@@ -22,6 +23,7 @@ def split_folder(
     train: Sequence[str],
     test: Sequence[str],
     horizon: int,
+    expect: Expect | None = None,
 ) -> dict:
     """Copy each validated flight CSV under ``src`` into ``dst/train`` or ``dst/test``.
 
@@ -29,7 +31,9 @@ def split_folder(
     goes to the part its ``train/``/``test/`` folder or ``src``'s manifest gives it, else it is
     left out. Each copy is named ``<trajectory>_<session>_run<k>.csv``
     (:func:`nanosysid.dataio.flight_catalog`), the form every later stage reads the trajectory
-    and run from. ``dst`` is replaced only when the whole split succeeded.
+    and run from. ``dst`` is replaced only when the whole split succeeded. With ``expect`` (the
+    vehicle's mass, k_F, gravity), every flight's columns are checked against each other first
+    (:mod:`nanosysid.consistency`): a flight in another unit or convention is refused.
 
     Returns:
         Summary with the flights and sample counts of each part (also ``dst/split.json``).
@@ -55,6 +59,9 @@ def split_folder(
         raise DataError(f"{src}: no flight of the test trajectories {list(test)}")
     summary: dict = {}
     read = {f: read_flight_csv(f.path, min_rows=horizon + 1) for flist in parts.values() for f in flist}
+    if expect is not None:
+        for flight in read.values():
+            check_flight(flight, expect)
     check_distinct(list(read.values()))
     with atomic_dir(dst, inputs=[src]) as tmp:
         for part, flist in parts.items():

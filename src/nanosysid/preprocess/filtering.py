@@ -27,6 +27,7 @@ from scipy.signal import butter, sosfiltfilt
 from tqdm.auto import tqdm
 
 from nanosysid import so3
+from nanosysid.consistency import Expect, check_flight
 from nanosysid.dataio import ACCEL_COLUMNS, INPUT_COLUMNS, Flight, atomic_dir, write_flight_csv, write_json
 from nanosysid.errors import DataError
 from nanosysid.settings import configured
@@ -158,8 +159,11 @@ def filter_flight(name: str, synced: pd.DataFrame, cfg: FilterConfig) -> tuple[F
     return flight, report
 
 
-def filter_folder(sync_dir: Path, out_dir: Path, report_dir: Path, cfg: FilterConfig) -> list[dict]:
-    """Filter every synchronised flight into ``out_dir/<flight>.csv`` (the published schema)."""
+def filter_folder(sync_dir: Path, out_dir: Path, report_dir: Path, cfg: FilterConfig,
+                  expect: Expect | None = None) -> list[dict]:
+    """Filter every synchronised flight into ``out_dir/<flight>.csv`` (the published schema); with
+    ``expect`` (the vehicle's mass, k_F, gravity), each flight's columns checked against each other
+    first (:mod:`nanosysid.consistency`): nothing is written where one breaks a physical law."""
     files = sorted(Path(sync_dir).glob("*.parquet"))
     if not files:
         raise DataError(f"{sync_dir}: no synchronised flights")
@@ -167,6 +171,8 @@ def filter_folder(sync_dir: Path, out_dir: Path, report_dir: Path, cfg: FilterCo
     with atomic_dir(out_dir, inputs=[sync_dir]) as tmp:
         for f in tqdm(files, desc="filter", unit="flight", disable=None):
             flight, rep = filter_flight(f.stem, pd.read_parquet(f), cfg)
+            if expect is not None:
+                check_flight(flight, expect, where=f"{f} (filtered)")
             write_flight_csv(flight, tmp / f"{f.stem}.csv")
             for group, runs in rep["gaps_left"].items():
                 log.warning("%s: %s has %d gap(s) longer than %d samples, left unfilled",

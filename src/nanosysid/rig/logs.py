@@ -41,7 +41,8 @@ import pandas as pd
 from scipy.spatial.transform import Rotation
 from tqdm.auto import tqdm
 
-from nanosysid.dataio import atomic_dir, check_finite, json_text, parse_flight_name
+from nanosysid.consistency import Columns, Expect, check as check_consistency
+from nanosysid.dataio import SAMPLE_PERIOD, PERIOD_TOL, atomic_dir, check_finite, json_text, parse_flight_name
 from nanosysid.errors import ConfigError, DataError
 
 __all__ = ["LogSpec", "REQUIRED", "read_log", "log_streams", "extract_logs", "trajectory_segment", "accel_frame_check"]
@@ -199,6 +200,16 @@ def accel_frame_check(accel: np.ndarray, q: np.ndarray, frame: str, where: str) 
     share = {f: float(np.sqrt(np.mean(b[:, 0] ** 2 + b[:, 1] ** 2)) / max(float(np.sqrt(np.mean((b ** 2).sum(1)))), 1e-12))
              for f, b in as_body.items()}
     other = "body" if frame == "world" else "world"
+    if share[other] < share[frame] and frame == "world":
+        # a quaternion in w, x, y, z order turns the world's specific force off the thrust axis in
+        # either reading; read in that order it lies along it again
+        b = Rotation.from_quat(q[:, [1, 2, 3, 0]]).inv().apply(accel)
+        wfirst = float(np.sqrt(np.mean(b[:, 0] ** 2 + b[:, 1] ** 2)) / max(float(np.sqrt(np.mean((b ** 2).sum(1)))), 1e-12))
+        if wfirst < min(share.values()) / 2:
+            raise DataError(f"{where}: columns 'qx qy qz qw': the world's specific force turned to the body by this "
+                            f"attitude has a lateral part of {share[frame]:.0%} of its size, read as w, x, y, z "
+                            f"{wfirst:.0%}; a quadrotor's specific force lies along its thrust axis: the quaternion is "
+                            "in w, x, y, z order (the logs' columns are x, y, z, w)")
     if share[other] < share[frame]:
         raise DataError(f"{where}: columns 'ax ay az': read in the {frame} frame, the body's specific force has a "
                         f"lateral part of {share[frame]:.0%} of its size, in the {other} frame {share[other]:.0%}; a "
@@ -207,14 +218,53 @@ def accel_frame_check(accel: np.ndarray, q: np.ndarray, frame: str, where: str) 
     return {"configured": frame, "lateral_share": share}
 
 
-def log_streams(df: pd.DataFrame, spec: LogSpec, where: str) -> tuple[dict[str, pd.DataFrame], dict]:
-    """The streams of one log (the extract stage's tables) and the report of the rules applied.
+# the log's columns by group, for the physical consistency check's messages
+LOG_COLUMNS = Columns("x, y, z", "vx, vy, vz", "qx, qy, qz, qw", "wx, wy, wz", "ax, ay, az",
+                      "m1_erpm..m4_erpm (× rig.logs.erpm_unit / rig.logs.pole_pairs)")
+HOST_STAMPS = ("ros_timestamp_x", "ros_timestamp_y", "ros_timestamp", "ros_timestamp_r")
+
+
+def check_clocks(df: pd.DataFrame, where: str) -> None:
+    """The log's grid ``t`` at the benchmark's rate, and each host stamp advancing at ``t``'s pace
+    (both in seconds).
 
     Raises:
-        DataError: a degenerate quaternion, no flight segment or one shorter than
-            ``spec.min_samples``, a stream without any reading, or an acceleration frame the data
-            contradict; naming the log and the column.
+        DataError: naming the column, the rate found and the likely unit.
     """
+    t = df["t"].to_numpy(dtype=np.float64)
+    step = float(np.median(np.diff(t))) if len(t) > 1 else SAMPLE_PERIOD
+    if not abs(step / SAMPLE_PERIOD - 1) <= PERIOD_TOL:
+        unit = " (t in ms?)" if abs(step / SAMPLE_PERIOD / 1000 - 1) <= PERIOD_TOL else \
+            " (t in µs?)" if abs(step / SAMPLE_PERIOD / 1e6 - 1) <= PERIOD_TOL else ""
+        raise DataError(f"{where}: column 't': rows {step:.6g} apart; the logs are on a {1 / SAMPLE_PERIOD:g} Hz grid "
+                        f"in seconds ({SAMPLE_PERIOD:g} s){unit}")
+    for c in HOST_STAMPS:
+        s = df[c].to_numpy(dtype=np.float64)
+        ok = np.isfinite(s) & np.isfinite(t)
+        # a stream holds its last stamp between messages: its pace is read over a second or more
+        if len(np.unique(s[ok])) < 10 or t[ok][-1] - t[ok][0] < 1.0:
+            continue
+        pace = (s[ok][-1] - s[ok][0]) / (t[ok][-1] - t[ok][0])
+        if not 0.5 <= pace <= 2.0:
+            unit = next((f" (in {u}?)" for u, f in (("ms", 1e3), ("µs", 1e6), ("ns", 1e9))
+                         if abs(np.log(pace / f)) < np.log(1.5)), "")
+            raise DataError(f"{where}: column {c!r}: the host stamps advance {pace:.4g} times as fast as 't'; both are "
+                            f"seconds{unit}")
+
+
+def log_streams(df: pd.DataFrame, spec: LogSpec, where: str,
+                expect: Expect | None = None) -> tuple[dict[str, pd.DataFrame], dict]:
+    """The streams of one log (the extract stage's tables) and the report of the rules applied;
+    with ``expect`` (the vehicle's mass, k_F, gravity), the flight segment's columns checked
+    against each other first (:mod:`nanosysid.consistency`).
+
+    Raises:
+        DataError: a clock in another unit, a degenerate quaternion, no flight segment or one
+            shorter than ``spec.min_samples``, a stream without any reading, an acceleration
+            frame the data contradict, or columns that contradict each other; naming the log and
+            the column.
+    """
+    check_clocks(df, where)
     t = df["t"].to_numpy(dtype=np.float64)
     rules: dict[str, Any] = {}
     start, stop, complete = trajectory_segment(df, where)
@@ -286,9 +336,20 @@ def log_streams(df: pd.DataFrame, spec: LogSpec, where: str) -> tuple[dict[str, 
     rules["spike"] = {"count": {f"m{i + 1}": int(spike[:, i].sum()) for i in range(4)},
                       "largest_erpm": float(np.nanmax(np.where(spike, erpm, np.nan))) if spike.any() else None,
                       "max_erpm": spec.max_erpm}
-    never = [f"m{i + 1}" for i in range(4) if streams["motors"][f"m{i + 1}"].isna().all()]
+    never = [i for i in range(4) if streams["motors"][f"m{i + 1}"].isna().all()]
     if never:
-        raise DataError(f"{where}: column '{never[0]}_erpm' has no valid reading: the motor telemetry is unusable")
+        i = never[0]
+        over = spike[:, i] & new_motor
+        if over.any() and not (new_motor & np.isfinite(erpm[:, i]) & ~over).any():
+            raise DataError(f"{where}: column 'm{i + 1}_erpm': every reading lies above rig.logs.max_erpm = "
+                            f"{spec.max_erpm:g} (median {np.median(erpm[over, i]):.4g}): the eRPM in another unit, or "
+                            "a max_erpm too low for these motors")
+        raise DataError(f"{where}: column 'm{i + 1}_erpm' has no valid reading: the motor telemetry is unusable")
+    if expect is not None and (complete or spec.keep_incomplete):  # a flight left out is not judged
+        # the segment's rows that hold every reading (a log holds each stream's last message between them)
+        y = values(["x", "y", "z", "vx", "vy", "vz", "qx", "qy", "qz", "qw", "wx", "wy", "wz"])
+        rows = seg & np.isfinite(y).all(axis=1) & np.isfinite(a_body).all(axis=1) & np.isfinite(rads).all(axis=1)
+        rules["consistency"] = check_consistency(t[rows], rads[rows], y[rows], a_body[rows], expect, where, LOG_COLUMNS)
 
     # the host's setpoints: the reference inside the flight segment, zero outside (as the rig sends)
     pr = values(["x_r", "y_r", "z_r"])
@@ -320,10 +381,11 @@ def log_streams(df: pd.DataFrame, spec: LogSpec, where: str) -> tuple[dict[str, 
     return streams, rules
 
 
-def extract_logs(raw_dir: str | Path, out_dir: str | Path, spec: LogSpec) -> dict:
+def extract_logs(raw_dir: str | Path, out_dir: str | Path, spec: LogSpec, expect: Expect | None = None) -> dict:
     """Every log that ``spec.flights`` names (``raw_dir/**/<log>.parquet``) to
     ``out_dir/<flight>/<stream>.parquet``, and ``out_dir/logs.json``: each flight's log and the
     rules applied to it. A flight left out (``incomplete``) is reported there and not written.
+    With ``expect``, each log's columns are checked against each other (:func:`log_streams`).
 
     Raises:
         DataError: a named log missing or two of one name, a bad log (see :func:`log_streams`),
@@ -345,7 +407,7 @@ def extract_logs(raw_dir: str | Path, out_dir: str | Path, spec: LogSpec) -> dic
     with atomic_dir(out_dir, inputs=[raw_dir]) as tmp:
         for stem, name in tqdm(spec.flights.items(), desc="logs", unit="log", disable=None):
             df, renamed = read_log(found[stem], spec.aliases)
-            streams, rules = log_streams(df, spec, str(found[stem]))
+            streams, rules = log_streams(df, spec, str(found[stem]), expect)
             if renamed:
                 rules["alias"] = renamed
             kept = rules["segment"]["complete"] or spec.keep_incomplete
