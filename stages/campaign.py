@@ -18,6 +18,7 @@ from nanosysid.viz.campaign import confusion_figure, gap_figure, recall_figure
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.campaign")
+MIN_DURATION = 3.0  # s, a world's shortest flight the campaign's chain reads (the tests fly 10 s)
 
 
 def main(cfg: DictConfig) -> dict:
@@ -28,6 +29,9 @@ def main(cfg: DictConfig) -> dict:
     in the summary."""
     c = cfg.campaign
     n, chunk = int(c.worlds), int(c.chunk)  # positive whole numbers: the config's rules check them
+    if float(c.duration) < MIN_DURATION:
+        raise ConfigError(f"campaign.duration = {c.duration} s; each world's flights need at least {MIN_DURATION:g} s "
+                          "for the sync stage's clock fit and discovery's blocks")
     spec = Launcher.from_mapping(plain(cfg.launcher))
     draws = campaign.draw(n, int(c.seed), user_share=float(c.user_share), max_effects=int(c.max_effects))
     test = list(cfg.split.test)

@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any, Callable, Sequence
 
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import ConfigAttributeError, ConfigKeyError
 
 from nanosysid.config import load_params
 from nanosysid.dataio import Flight
@@ -63,6 +64,12 @@ def run_stage(
     except UserError as e:
         print(f"error: {e}", file=sys.stderr)
         return 2
+    except (ConfigAttributeError, ConfigKeyError) as e:  # a setting the stage reads, deleted (~key) or absent
+        key = getattr(e, "full_key", None) or str(e).splitlines()[0]
+        deleted = [o for o in args.overrides if o.startswith("~") and str(key).startswith(o[1:].partition("=")[0])]
+        print(f"error: the setting {key!r} is missing" + (f" (deleted by {deleted[0]})" if deleted else "")
+              + f"; the {stage} stage reads it", file=sys.stderr)
+        return 2
     except OSError as e:
         print(f"error: {os_fault(e)}", file=sys.stderr)
         return 2
@@ -83,7 +90,8 @@ class Stopped(BaseException):
 
 
 class _stopped_by_signals:
-    """Inside the block, SIGTERM and SIGINT raise :class:`Stopped`: the stage unwinds through its
+    """Inside the block, SIGTERM, SIGINT and SIGHUP (a closed terminal or ssh session) raise
+    :class:`Stopped`: the stage unwinds through its
     outputs' guards (nothing half-written is renamed into place) and exits 128 + the signal.
     Lightning keeps a SIGTERM handler found in place and calls it after its own."""
 
@@ -92,7 +100,7 @@ class _stopped_by_signals:
             raise Stopped(signum)
 
         # a signal the caller ignores (SIGINT of a job started in the background) stays ignored
-        self._before = {s: signal.signal(s, stop) for s in (signal.SIGTERM, signal.SIGINT)
+        self._before = {s: signal.signal(s, stop) for s in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
                         if signal.getsignal(s) is not signal.SIG_IGN}
         return self
 

@@ -9,6 +9,7 @@ from omegaconf import DictConfig
 
 from nanosysid import protocol
 from nanosysid.dataio import atomic_file, json_text
+from nanosysid.errors import ConfigError
 from nanosysid.metrics import QUANTITIES
 from nanosysid.report import tables
 from nanosysid.report.paper import PAPER_STATS
@@ -33,6 +34,10 @@ def main(cfg: DictConfig) -> None:
     ``report.figures``, the MAE curves of every model in ``report.plots`` (CSV), and every model's
     SimErr per quantity in ``report.summary`` (JSON, the metrics experiments are compared on)."""
     rc = cfg.report
+    a, b = rc.lineplot.window
+    if not 0 <= a < b:  # before any output is written
+        raise ConfigError(f"report.lineplot.window = [{a:g}, {b:g}] s: a window is a start >= 0 and a later end, in "
+                          "seconds from the flight's start")
     names = list(cfg.models)
     horizons = [h for h in cfg.eval.table_horizons if h <= int(cfg.eval.horizon)]
     if len(horizons) < len(cfg.eval.table_horizons):
@@ -47,7 +52,10 @@ def main(cfg: DictConfig) -> None:
     fig_dir = Path(rc.figures)
     figures.mae_horizon_figure(rows, fig_dir / "mae_horizon.png")
     shown = [n for n in rc.lineplot.models if n in cfg.models]
-    a, b = rc.lineplot.window
+    duration = float(flight.t[-1] - flight.t[0])
+    if b > duration:
+        log.warning("report.lineplot.window = [%g, %g] s reaches beyond flight %s (%.4g s): the figure shows %s", a, b,
+                    flight.name, duration, "its part inside the flight" if a < duration else "the whole flight")
     # only the rollouts that end inside the window (and the smoothing's margin) are drawn
     t = flight.t - flight.t[0]
     inside = np.flatnonzero((t >= a) & (t <= b))

@@ -154,7 +154,7 @@ def test_each_model_has_its_own_key_and_the_vehicle_is_resolved():
 def test_overrides_on_params(tmp_path):
     cfg = config.load_params(["eval.horizon=20", "~split.test"], path=ROOT / "params.yaml")
     assert cfg.eval.horizon == 20 and "test" not in cfg.split
-    with pytest.raises(config.ConfigError, match="adds the setting 'extra.flag', which no stage reads"):
+    with pytest.raises(config.ConfigError, match="adds the setting 'extra.flag', which params.yaml does not hold"):
         config.load_params(["+extra.flag=true"], path=ROOT / "params.yaml")
     with pytest.raises(config.ConfigError, match="no_such_key"):
         config.load_params(["no_such_key=1"], path=ROOT / "params.yaml")

@@ -257,6 +257,10 @@ def test_report_shows_every_model_with_its_evaluated_numbers(tiny):
         assert (tiny / "report" / "figures" / f"{fig}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     curves = (tiny / "report" / "mae.csv").read_text().splitlines()
     assert curves[0] == "h,model,p,v,R,w" and len(curves) == 1 + 8 * 50
+    # a reversed window of the prediction figure is refused before any output is replaced
+    before = (tiny / "report" / "benchmark.md").read_bytes()
+    assert run(report, tiny, "report.lineplot.window=[2.5,0.5]") == 2
+    assert (tiny / "report" / "benchmark.md").read_bytes() == before
     m = json.loads((tiny / "eval" / "lstm" / "scores.json").read_text())
     h10 = next(line for line in curves if line.startswith("10,lstm,")).split(",")
     assert float(h10[4]) == pytest.approx(m["mae"]["R"][9], rel=1e-6)

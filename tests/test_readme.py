@@ -308,8 +308,9 @@ RUN_BY = {
     "dvc exp run --queue": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache",
     "dvc queue start": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache",
     "python -m stages.campaign": "tests/test_launcher.py::test_campaign_gives_the_same_bytes_with_one_or_two_workers",
-    "dvc exp run -S launcher=slurm": "tests/test_readme.py::test_the_readmes_slurm_experiment_composes_and_says_what"
-                                     "_this_machine_lacks",
+    "dvc exp run campaign/dvc.yaml -S launcher=slurm": "tests/test_readme.py::test_the_readmes_slurm_experiment_"
+                                                       "composes_and_says_what_this_machine_lacks",
+    "make campaign": "tests/test_repro.py::test_each_pipeline_file_runs_apart_and_the_run_names_what_the_other_would_rerun",
     "dvc remote add": "tests/test_readme.py::test_the_readmes_minio_remote_commands_configure_dvc",
     "dvc remote modify": "tests/test_readme.py::test_the_readmes_minio_remote_commands_configure_dvc",
     "dvc push --run-cache": "tests/test_dvc.py::test_outputs_and_run_cache_round_trip_through_a_remote",

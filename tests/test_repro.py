@@ -134,6 +134,10 @@ def test_each_pipeline_file_runs_apart_and_the_run_names_what_the_other_would_re
     status = subprocess.run([sys.executable, "-m", "dvc", "status"], cwd=root, env=env, capture_output=True,
                             text=True)
     assert "up to date" in status.stdout, status.stdout
+    # `make campaign` is this call on the project's campaign pipeline
+    makefile = (Path(__file__).resolve().parents[1] / "Makefile").read_text()
+    recipe = makefile[makefile.index("\ncampaign:"):].split("\n\n")[0]
+    assert "-m nanosysid.repro --pipeline campaign/dvc.yaml" in recipe, recipe
 
 
 def test_a_failing_stage_stops_the_run_with_its_log_and_runs_nothing_after_it(tmp_path, env):

@@ -253,8 +253,8 @@ def test_without_a_local_copy_the_files_come_through_dvc_from_the_pinned_commit(
 def test_no_network_and_no_folder_is_one_line_naming_the_repository(tmp_path):
     m = manifest_for(DATA / "raw", tmp_path)
     nowhere = tmp_path / "nowhere.git"
-    with pytest.raises(DataError, match=rf"^{re.escape(str(nowhere))} at c{{40}}: cannot be fetched through DVC .*set "
-                                        r"rig\.local"):
+    with pytest.raises(DataError, match=rf"^rig\.local = {re.escape(str(tmp_path / 'no-copy'))} is no such folder .*fetched "
+                                        rf"from {re.escape(str(nowhere))} at c{{40}}, which cannot be reached .*set rig\.local"):
         rigfetch.fetch(m, tmp_path / "raw", local=tmp_path / "no-copy", repository=str(nowhere), commit="c" * 40)
     assert not (tmp_path / "raw").exists()
     ok, why = rigfetch.available(m, tmp_path / "raw", local=None, repository=str(nowhere), commit="c" * 40)

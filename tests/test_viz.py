@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from nanosysid.dataio import Flight
+from nanosysid.errors import DataError
 from nanosysid.viz import rrd
 from nanosysid.viz.rerun import kept_of, write_recording
 
@@ -101,3 +102,20 @@ def test_canonical_stream_keeps_every_chunk_and_changes_only_ids_and_wall_clock(
 def test_canonical_refuses_what_is_not_an_rrd_stream():
     with pytest.raises(ValueError, match="not an RRD stream"):
         rrd.canonical(b"PK\x03\x04 a zip file", "flight")
+
+
+@pytest.mark.parametrize("cut", ["half", "20 bytes"])
+def test_a_stream_cut_short_is_one_error_naming_the_argument(tmp_path, cut):
+    import rerun as rr
+
+    rec = rr.RecordingStream("nanosysid-test", recording_id="flight")
+    path = tmp_path / "raw.rrd"
+    rec.save(path)
+    rec.send_columns("/x", indexes=[rr.TimeColumn("t", duration=np.arange(200.0))],
+                     columns=rr.Scalars.columns(scalars=np.arange(200.0) ** 2))
+    rec.flush()
+    rec.disconnect()
+    data = path.read_bytes()
+    part = data[: len(data) // 2] if cut == "half" else data[:20]
+    with pytest.raises(DataError, match=r"rrd.canonical: data is not a whole RRD stream, cut short or damaged"):
+        rrd.canonical(part, "flight")

@@ -31,7 +31,7 @@ import torch
 from nanosysid import discover, identify, protocol, sim, so3
 from nanosysid.preprocess.sync import LagEvidence, SyncConfig, motor_lag_estimate, motor_lag_evidence
 from nanosysid.effects import LIBRARY
-from nanosysid.errors import PredictionError
+from nanosysid.errors import ConfigError, PredictionError
 from nanosysid.launcher import Launcher, even_parts, map_tasks
 from nanosysid.sim import EFFECTS, SimConfig
 from nanosysid.sim import world as nature
@@ -123,9 +123,19 @@ class HiddenWorld:
 
 def draw(n: int, seed: int = 0, *, user_share: float = 0.2, max_effects: int = 3) -> list[HiddenWorld]:
     """``n`` worlds drawn from ``seed``: 0 to ``max_effects`` simulator effects each, strengths
-    log-uniform in 0.3..3; a share ``user_share`` also get a user effect outside the library."""
+    log-uniform in 0.3..3; a share ``user_share`` also get a user effect outside the library.
+
+    Raises:
+        ConfigError: ``max_effects`` beyond the simulator's effects, or ``user_share`` outside 0..1.
+    """
     rng = np.random.default_rng(seed)
     names = sorted(EFFECTS)
+    if isinstance(max_effects, bool) or not isinstance(max_effects, (int, np.integer)) or not 0 <= max_effects <= len(names):
+        raise ConfigError(f"campaign: max_effects (campaign.max_effects) = {max_effects!r}; a world draws 0 to at most "
+                          f"the simulator's {len(names)} effects")
+    if not 0 <= user_share <= 1:
+        raise ConfigError(f"campaign: user_share (campaign.user_share) = {user_share!r}; it is the share of worlds "
+                          "given an effect outside the library, from 0 to 1")
     out = []
     for i in range(n):
         k = int(rng.integers(0, max_effects + 1))

@@ -30,9 +30,29 @@ def stage_names(root: Path) -> list[str]:
     return sorted(p.stem for p in (root / "stages").glob("*.py") if p.stem not in ("__init__", "common"))
 
 
+def from_here(overrides: list[str], here: Path, root: Path) -> list[str]:
+    """The overrides with each relative path that exists in the user's working folder ``here``,
+    and not in the project ``root`` the stage runs in, made absolute (a user's own folder)."""
+    out = []
+    for o in overrides:
+        key, eq, value = o.partition("=")
+        if eq and value and not Path(value).is_absolute() and here != root and (here / value).exists() \
+                and not (root / value).exists():
+            o = f"{key}={(here / value).resolve()}"
+            print(f"nanosysid: {key}={value} is {o.partition('=')[2]} (relative to the working folder)", file=sys.stderr)
+        out.append(o)
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    root = project_root()
+    try:
+        here = Path.cwd()
+    except FileNotFoundError:
+        print("nanosysid: the working folder no longer exists (deleted while in it); cd to a folder that does",
+              file=sys.stderr)
+        return 2
+    root = project_root(here)
     names = stage_names(root) if (root / "stages").is_dir() else []
     if not names:
         print(f"nanosysid: {root} holds no stages/ (run it in a clone of the repository)", file=sys.stderr)
@@ -48,7 +68,7 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     os.chdir(root)
     sys.path.insert(0, str(root))
-    sys.argv = [f"nanosysid {stage}", *argv[1:]]
+    sys.argv = [f"nanosysid {stage}", *from_here(argv[1:], here, root)]
     try:
         runpy.run_module(f"stages.{stage}", run_name="__main__", alter_sys=True)
     except SystemExit as e:

@@ -25,9 +25,11 @@ import warnings
 from pathlib import Path
 from typing import Sequence
 
+import yaml
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 
-from nanosysid.errors import ConfigError
+from nanosysid.errors import ConfigError, UserError
 from nanosysid.settings import check_value, leaves
 
 __all__ = ["compose", "compose_text", "load_params", "rederive", "interpolations", "select_groups", "apply_overrides",
@@ -67,16 +69,29 @@ def compose_text(overrides: Sequence[str] = (), *, conf_dir: Path = CONF_DIR, ro
     """The YAML text DVC would write to ``params.yaml`` for these overrides (``root``: the root
     config, ``rig`` for ``params-rig.yaml``)."""
     from dvc.utils.hydra import compose_and_dump
+    from hydra.errors import HydraException
 
     with tempfile.TemporaryDirectory() as d:
         out = Path(d) / "params.yaml"
-        compose_and_dump(out, str(Path(conf_dir).resolve()), None, root, str(Path.cwd()), list(overrides))
+        try:
+            compose_and_dump(out, str(Path(conf_dir).resolve()), None, root, str(Path.cwd()), list(overrides))
+        except HydraException as e:  # a typo in a key, an unknown group option: Hydra's own first line
+            first = str(e).strip().splitlines()[0] if str(e).strip() else type(e).__name__
+            raise ConfigError(f"cannot compose {list(overrides)} from {conf_dir}: {first}") from None
         return out.read_text(encoding="utf-8")
 
 
 def compose(overrides: Sequence[str] = (), *, out: Path = PARAMS, conf_dir: Path = CONF_DIR, root: str = "config") -> bool:
-    """Write the composition to ``out``; return True when the file changed."""
+    """Write the composition to ``out``; return True when the file changed. A composition whose
+    values the settings' rules refuse (:func:`check_values`) is not written."""
     text = compose_text(renamed(overrides), conf_dir=conf_dir, root=root)
+    try:
+        composed = OmegaConf.create(text)
+        OmegaConf.resolve(composed)
+    except OmegaConfBaseException as e:
+        raise ConfigError(f"{out}: the composition of {list(overrides)} does not resolve: {str(e).splitlines()[0]}") \
+            from None
+    check_values(OmegaConf.to_container(composed), f"{Path(out).name} composed with {list(overrides)}")
     out = Path(out)
     if out.exists() and out.read_text(encoding="utf-8") == text:
         return False
@@ -98,8 +113,9 @@ def apply_overrides(cfg: DictConfig, overrides: Sequence[str]) -> DictConfig:
         key = o.partition("=")[0]
         if key.startswith("+"):
             # a key no stage reads would be carried silently into the run's record
-            raise ConfigError(f"{o}: adds the setting {key[1:]!r}, which no stage reads; the settings are those in "
-                              "params.yaml (change one with key=value)")
+            raise ConfigError(f"{o}: adds the setting {key[1:]!r}, which params.yaml does not hold; a setting is "
+                              "changed with key=value, and one the configuration lacks (another log of "
+                              "rig.logs.flights, say) is added in conf/, then `make params`")
     try:
         parsed = OverridesParser.create().parse_overrides(list(overrides))
     except HydraException as e:
@@ -123,6 +139,17 @@ def select_groups(cfg: DictConfig, overrides: Sequence[str], *, conf_dir: Path =
     rest = []
     for o in overrides:
         key, eq, value = o.partition("=")
+        name, at, package = key.partition("@")
+        if eq and at and name.isidentifier() and (Path(conf_dir) / name).is_dir():
+            # group@package=option: the option's file put at the package's place (topics@preprocess.topics=crazyflie)
+            option = Path(conf_dir) / name / f"{value}.yaml"
+            if not option.is_file():
+                known = ", ".join(sorted(p.stem for p in (Path(conf_dir) / name).glob("*.yaml")))
+                raise ConfigError(f"{o}: no option {value!r} in {Path(conf_dir) / name}/ (known: {known})")
+            if OmegaConf.select(cfg, package) is None:
+                raise ConfigError(f"{o}: params.yaml has no block {package!r} to put the option in")
+            OmegaConf.update(cfg, package, OmegaConf.load(option), merge=False)
+            continue
         group = Path(conf_dir) / key
         if eq and key.isidentifier() and group.is_dir() and OmegaConf.is_dict(cfg.get(key)):
             option = group / f"{value}.yaml"
@@ -141,16 +168,41 @@ def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> 
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: not found; run `make params` to compose it from conf/")
-    cfg = OmegaConf.load(path)
+    try:
+        cfg = OmegaConf.load(path)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        at = f" (line {mark.line + 1})" if mark is not None else ""
+        raise ConfigError(f"{path}: not a readable YAML file{at}: {getattr(e, 'problem', None) or e}") from None
+    if not isinstance(cfg, DictConfig):
+        raise ConfigError(f"{path}: holds no settings (a YAML mapping of keys to values)")
     overrides = renamed(overrides)
     rest = select_groups(cfg, overrides)  # an unknown group option is refused here, by name
     if overrides:
         rederive(cfg, _root_of(path), [o for o in overrides if o not in rest],
                  addressed=[o.partition("=")[0].lstrip("+~") for o in rest])
     cfg = apply_overrides(cfg, rest)
-    OmegaConf.resolve(cfg)
+    try:
+        OmegaConf.resolve(cfg)
+    except OmegaConfBaseException as e:  # ${nope.key}: the key whose value names what is missing
+        raise ConfigError(f"{path}: {_unresolved(cfg) or 'a setting'}: {str(e).splitlines()[0]}") from None
     check_values(OmegaConf.to_container(cfg), f"{path}{' with overrides' if overrides else ''}")
     return cfg
+
+
+def _unresolved(cfg: DictConfig, prefix: str = "") -> str | None:
+    """The first key of ``cfg`` whose value does not resolve (an interpolation of a missing key)."""
+    for key in cfg.keys():
+        full = f"{prefix}{key}"
+        try:
+            value = cfg[key]
+        except OmegaConfBaseException:
+            return full
+        if isinstance(value, DictConfig):
+            inner = _unresolved(value, full + ".")
+            if inner:
+                return inner
+    return None
 
 
 def _root_of(path: Path) -> str:
@@ -320,9 +372,18 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("overrides", nargs="*")
     args = parser.parse_args(argv)
     if args.command == "compose":
-        for root, out in ROOTS.items():
-            changed = compose(args.overrides, out=out, root=root)
-            print(f"{out} {'updated from' if changed else 'matches'} conf/")
+        try:
+            texts = {out: compose_text(renamed(args.overrides), root=root) for root, out in ROOTS.items()}
+            for root, out in ROOTS.items():  # every composition checked before either file is written
+                composed = OmegaConf.create(texts[out])
+                OmegaConf.resolve(composed)
+                check_values(OmegaConf.to_container(composed), f"{out.name} composed with {args.overrides}")
+            for root, out in ROOTS.items():
+                changed = compose(args.overrides, out=out, root=root)
+                print(f"{out} {'updated from' if changed else 'matches'} conf/")
+        except (UserError, OmegaConfBaseException) as e:
+            print(f"error: {str(e).splitlines()[0]}", file=sys.stderr)
+            return 2
         return 0
     for root, out in ROOTS.items():
         text = compose_text(renamed(args.overrides), root=root)

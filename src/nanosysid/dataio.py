@@ -20,7 +20,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Any, Iterable, Iterator, Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -49,6 +49,7 @@ __all__ = [
     "FlightFile",
     "MANIFEST",
     "check_distinct",
+    "flight_list",
     "atomic_file",
     "atomic_dir",
 ]
@@ -102,9 +103,16 @@ class Flight:
     source: Path | None = field(default=None, compare=False, repr=False)
 
     def __post_init__(self) -> None:
+        for key in ("t", "u", "y"):  # a list or a table of numbers is taken as an array; anything else named
+            value = getattr(self, key)
+            if not (isinstance(value, np.ndarray) and np.issubdtype(value.dtype, np.number)):
+                try:
+                    setattr(self, key, np.asarray(value, dtype=np.float64))
+                except (TypeError, ValueError) as e:
+                    raise DataError(f"flight {self.name}: {key} must be an array of numbers ({e})") from None
         T = len(self.t)
         if self.u.shape != (T, 4) or self.y.shape != (T, 13):
-            raise ValueError(
+            raise DataError(
                 f"flight {self.name}: shapes t {self.t.shape}, u {self.u.shape}, y {self.y.shape};"
                 f" expected ({T},), ({T}, 4), ({T}, 13)"
             )
@@ -132,6 +140,28 @@ class Flight:
                 cols[k] = self.extra[k]
         cols.update({k: v for k, v in self.extra.items() if k not in cols})
         return pd.DataFrame(cols)
+
+
+def flight_list(flights: Any, where: str, argument: str = "flights") -> list[Flight]:
+    """``flights`` as a list of :class:`Flight`: a list, a tuple or a generator (read once).
+
+    Raises:
+        DataError: one Flight, a mapping (whose keys would be taken for flights), or an item that
+            is no Flight; naming ``where`` and ``argument``.
+    """
+    if isinstance(flights, Flight):
+        raise DataError(f"{where}: {argument} must be a list of flights, got one Flight ({flights.name}); pass "
+                        "[flight]")
+    if isinstance(flights, Mapping):
+        raise DataError(f"{where}: {argument} must be a list of flights, got a {type(flights).__name__} (its keys "
+                        "would be taken for flights); pass list(....values())")
+    if isinstance(flights, (str, bytes)) or not isinstance(flights, Iterable):
+        raise DataError(f"{where}: {argument} must be a list of flights, got {type(flights).__name__}")
+    out = list(flights)
+    for i, f in enumerate(out):
+        if not isinstance(f, Flight):
+            raise DataError(f"{where}: {argument}[{i}] is a {type(f).__name__}, not a Flight")
+    return out
 
 
 def parse_flight_name(name: str) -> tuple[str, int]:
@@ -307,33 +337,46 @@ def _read_manifest(folder: Path) -> dict[str, tuple[str, str, int, str | None]]:
 # distinct samples two flights may share before one counts as a copy of part of the other: a flight
 # at rest repeats one sample (one distinct value), a recorded flight never repeats another's
 SHARED_SAMPLES = 20
+SAME_DECIMALS = 4  # the decimals two samples of one flight agree to, copied by value
 
 
 def check_distinct(flights: Sequence[Flight]) -> None:
     """Refuse a flight holding samples of another under a different name: a copy, a copy with
-    its time stamps moved, or a part of another (its first rows, say). A test flight in the
-    training set would be trained on and scored on.
+    its time stamps moved, or a part of another (its first rows, say); and, by value, a copy
+    rounded or rescaled by another tool, or with its positions mirrored (the rotor speeds,
+    velocity, attitude and rates, rounded to :data:`SAME_DECIMALS` decimals, the same). A test
+    flight in the training set would be trained on and scored on.
 
     A sample is the row of rotor speeds and outputs; two flights sharing at least
     :data:`SHARED_SAMPLES` distinct samples are refused.
     """
-    owner: dict[bytes, int] = {}
     where = lambda g: str(g.source) if g.source else g.name  # noqa: E731
-    for i, f in enumerate(flights):
-        rows = np.ascontiguousarray(np.column_stack([f.u, f.y]), dtype=np.float64)
-        keys = set(rows.view(np.dtype((np.void, rows.shape[1] * 8))).ravel().tolist())
-        shared: dict[int, int] = {}
-        for k in keys:
-            j = owner.setdefault(k, i)
-            if j != i:
-                shared[j] = shared.get(j, 0) + 1
-        j, n = max(shared.items(), key=lambda x: x[1], default=(None, 0))
-        if n >= SHARED_SAMPLES:
-            a = flights[j]
-            raise DataError(f"{where(f)}: {n} of its {len(keys)} distinct samples are the same samples as in "
-                            f"{where(a)}; a flight "
-                            "must be in the data once (a copy under another name, in part or with its time moved, "
-                            "leaks between training and test)")
+
+    def exact(f: Flight) -> np.ndarray:
+        return np.column_stack([f.u, f.y])
+
+    def by_value(f: Flight) -> np.ndarray:
+        # the sensors' noise is far above 1e-4 in every unit: two flights agreeing to 4 decimals
+        # over many samples are one flight; positions left out, so a mirror of one is seen too
+        return np.round(np.column_stack([f.u, f.y[:, 3:]]), SAME_DECIMALS) + 0.0  # -0.0 as 0.0
+
+    for rows_of, how in ((exact, "the same samples"),
+                         (by_value, f"the same samples to {SAME_DECIMALS} decimals (positions aside)")):
+        owner: dict[bytes, int] = {}
+        for i, f in enumerate(flights):
+            rows = np.ascontiguousarray(rows_of(f), dtype=np.float64)
+            keys = set(rows.view(np.dtype((np.void, rows.shape[1] * 8))).ravel().tolist())
+            shared: dict[int, int] = {}
+            for k in keys:
+                j = owner.setdefault(k, i)
+                if j != i:
+                    shared[j] = shared.get(j, 0) + 1
+            j, n = max(shared.items(), key=lambda x: x[1], default=(None, 0))
+            if n >= SHARED_SAMPLES:
+                a = flights[j]
+                raise DataError(f"{where(f)}: {n} of its {len(keys)} distinct samples are {how} as in {where(a)}; a "
+                                "flight must be in the data once (a copy under another name, in part, with its time "
+                                "moved, rounded, rescaled or mirrored, leaks between training and test)")
 
 
 def session_of(name: str) -> str:
@@ -402,6 +445,10 @@ def read_flight_csv(path: str | os.PathLike, *, min_rows: int = 1, name: str | N
     if twice:
         raise DataError(f"{path}: column(s) {', '.join(repr(c) for c in twice)} appear more than once in the header")
     missing = [c for c in SCHEMA if c not in df.columns]
+    padded = [c for c in df.columns if c != c.strip() and c.strip() in missing]
+    if padded:
+        raise DataError(f"{path}: the header's names are padded with spaces ({', '.join(repr(c) for c in padded[:3])}"
+                        f"{' ...' if len(padded) > 3 else ''}); write them without (t,m1_rads,...)")
     if missing:
         raise DataError(
             f"{path}: missing column(s) {', '.join(repr(c) for c in missing)}"
@@ -557,7 +604,11 @@ def atomic_dir(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike] =
             c.done(tmp)
             if path.exists():
                 old = Path(tempfile.mkdtemp(prefix=f".{path.name}.{guard.TMP}", suffix=".old", dir=path.parent))
-                os.replace(path, old / "x")
+                try:
+                    os.replace(path, old / "x")
+                except OSError:
+                    old.rmdir()  # the output could not be moved aside (immutable, say): it stays as it was
+                    raise
                 os.replace(tmp, path)
                 shutil.rmtree(old)
             else:

@@ -402,6 +402,17 @@ def _ours(path: Path, kind: str, stage: str, rec: dict | None, run: _Run | None)
                       "(choose a new or empty folder)")
 
 
+def _disk_full(e: BaseException) -> int | None:
+    """ENOSPC or EDQUOT where ``e`` says the disk is full (an OSError, or a library's error that
+    carries the errno only in its text), else None."""
+    if isinstance(e, OSError) and e.errno in (errno.ENOSPC, errno.EDQUOT):
+        return e.errno
+    text = str(e)
+    if isinstance(e, OSError) and ("No space left on device" in text or f"errno {errno.ENOSPC}]" in text):
+        return errno.ENOSPC
+    return None
+
+
 @contextlib.contextmanager
 def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathLike] = (),
           replace: bool = False) -> Iterator[Claim]:
@@ -451,12 +462,15 @@ def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathL
             if leftover.name.endswith((".tmp", ".old")):
                 shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink()
         yield c
-    except BaseException:
+    except BaseException as e:
         # a failed write leaves the record as it was
         if c.fd is not None:
             os.ftruncate(c.fd, 0)
             if rec is not None:
                 os.pwrite(c.fd, (json.dumps(rec, indent=1, sort_keys=True) + "\n").encode(), 0)
+        full = _disk_full(e)
+        if full is not None:  # the output's disk, whatever file (an input copied, a library's) the error named
+            raise OSError(full, os.strerror(full), str(path)) from None
         raise
     finally:
         os.close(fd)  # closing releases the lock

@@ -38,9 +38,9 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from nanosysid.dataio import atomic_file, Flight, json_text, read_json_record
+from nanosysid.dataio import atomic_file, Flight, flight_list, json_text, read_json_record
 from nanosysid.dynamics import SPIN
-from nanosysid.errors import DataError
+from nanosysid.errors import ConfigError, DataError
 from nanosysid.vehicle import Vehicle
 
 _log = logging.getLogger(__name__)
@@ -260,11 +260,40 @@ def with_inertia_range(fit: Fit, inertia_z: float, inertia_z_range: Sequence[flo
 def identify(flights: Sequence[Flight], vehicle: Vehicle, *, window: int = 15, polyorder: int = 3) -> tuple[Fit, Fit]:
     """The thrust fit (k_F) and the yaw-moment fit (k_M) on ``flights``, both by the paper's
     method (least squares); a thrust fit the vehicle cannot have is refused (:func:`check_thrust`)."""
+    flights = flight_list(flights, "identify")
     if not flights:
         raise DataError("identify: no training flight to fit k_F and k_M on")
-    thrust = fit_thrust(flights, vehicle)
-    check_thrust(thrust, vehicle)
-    return thrust, fit_yaw_moment(flights, vehicle, window=window, polyorder=polyorder)
+    check_inputs(flights, window, polyorder)
+    try:
+        thrust = fit_thrust(flights, vehicle)
+        check_thrust(thrust, vehicle)
+        return thrust, fit_yaw_moment(flights, vehicle, window=window, polyorder=polyorder)
+    except np.linalg.LinAlgError as e:
+        raise DataError(f"identify: the flights do not determine k_F and k_M ({e}): the rotor speeds' squares and "
+                        "their yaw combination must vary over the flights") from None
+
+
+def check_inputs(flights: Sequence[Flight], window: int, polyorder: int) -> None:
+    """Refuse what the fits cannot read: a flight without the accelerometer's ``az_body``, or a
+    Savitzky-Golay ``window`` (above ``polyorder``, within the shortest flight) and
+    ``polyorder`` (a whole number >= 1) the derivatives cannot have.
+
+    Raises:
+        DataError: the flight and the column; ConfigError: the setting and its value.
+    """
+    for f in flights:
+        if "az_body" not in f.extra:
+            raise DataError(f"identify: flight {f.name} has no column 'az_body' (the accelerometer's specific force, "
+                            "m/s², which k_F is fitted to)")
+    shortest = min(len(f) for f in flights)
+    for name, v in (("window", window), ("polyorder", polyorder)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ConfigError(f"identify: {name} (identify.savgol_{name if name == 'window' else 'order'}) must be a "
+                              f"whole number >= 1, got {v!r}")
+    if not polyorder < window <= shortest:
+        raise ConfigError(f"identify: window = {window} (identify.savgol_window) with polyorder = {polyorder}: the "
+                          f"Savitzky-Golay window must be above the polynomial order and at most the shortest "
+                          f"flight's {shortest} samples")
 
 
 # how far from the vehicle's nominal an identified coefficient may lie: k_F is determined to a

@@ -25,13 +25,14 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from nanosysid import metrics
+from nanosysid.consistency import NO_LOAD_SPEED
 from nanosysid.dataio import (INPUT_COLUMNS, OUTPUT_COLUMNS, SAMPLE_PERIOD, Flight, atomic_file, check_distinct,
-                              flight_catalog, parse_flight_name, read_flight_csv)
+                              flight_catalog, flight_list, parse_flight_name, read_flight_csv)
 from nanosysid.errors import ConfigError, DataError, PredictionError
 from nanosysid.numerics import LOOP_THREADS, threads
 
 __all__ = ["Benchmark", "Flight", "Scores", "Kept", "evaluate", "load", "save_kept", "load_kept", "predictions", "score", "windows", "check_flight", "check_predictions",
-           "template_frame", "write_template", "QUAT_NORM_TOLERANCE"]
+           "template_frame", "write_template", "QUAT_NORM_TOLERANCE", "flight_list"]
 
 Predictor = Callable[[Any, Any], Any]
 
@@ -131,6 +132,9 @@ def windows(flight: Flight, horizon: int) -> tuple[np.ndarray, np.ndarray, np.nd
     Returns:
         ``y0 (N, 13)``, ``u (N, H, 4)`` and the targets ``y (N, H, 13)``.
     """
+    if not isinstance(flight, Flight):
+        raise DataError(f"windows: flight must be a Flight, got {type(flight).__name__}")
+    horizon = _count(horizon, "horizon")
     T = len(flight)
     n = T - horizon
     if n < 1:
@@ -142,10 +146,13 @@ def windows(flight: Flight, horizon: int) -> tuple[np.ndarray, np.ndarray, np.nd
     return flight.y[:n], u, y
 
 
-def _to_numpy(a) -> np.ndarray:
+def _to_numpy(a, what: str = "predictions") -> np.ndarray:
     if hasattr(a, "detach"):
         a = a.detach().cpu().numpy()
-    return np.asarray(a, dtype=np.float64)
+    try:
+        return np.asarray(a, dtype=np.float64)
+    except (TypeError, ValueError) as e:
+        raise PredictionError(f"{what}: values that are not numbers ({e})") from None
 
 
 def _count(value, name: str) -> int:
@@ -176,6 +183,12 @@ def check_flight(flight: Flight) -> None:
             i, c = np.argwhere(bad)[0]
             raise DataError(f"flight {flight.name}: column {cols[c]!r} is {arr[i, c]} at sample {i} "
                             f"(t = {flight.t[i]:.6g} s); the truth must be finite to be scored against")
+    out = (flight.u < 0) | (flight.u > 1.5 * NO_LOAD_SPEED)
+    if out.any():
+        i, c = np.argwhere(out)[0]
+        raise DataError(f"flight {flight.name}: column {INPUT_COLUMNS[c]!r} is {flight.u[i, c]:.6g} rad/s at sample {i}; "
+                        f"a rotor speed is a magnitude below the motor's no-load speed (about {NO_LOAD_SPEED:g} rad/s): "
+                        "another unit or sign?")
     norm = np.linalg.norm(flight.y[:, 6:10], axis=1)
     off = np.abs(norm - 1.0) > QUAT_NORM_TOLERANCE
     if off.any():
@@ -229,7 +242,7 @@ def _predicted_batches(predict: Predictor, y0: np.ndarray, u: np.ndarray, batch_
         # a rollout is a loop over time on small tensors, whatever the predictor: one thread
         # (numerics.LOOP_THREADS) is as fast when the machine is idle and not stalled when it is busy
         with threads(LOOP_THREADS):
-            pred = _to_numpy(predict(_read_only(y0[b]), _read_only(u[b]), **context))
+            pred = _to_numpy(predict(_read_only(y0[b]), _read_only(u[b]), **context), f"flight {name}: the predictor")
         if pred.shape != (b.stop - b.start, horizon, 13):
             raise PredictionError(
                 f"predictor returned shape {pred.shape} on flight {name}; "
@@ -335,9 +348,17 @@ def predictions(predict: Predictor, flight: Flight, *, horizon: int = 50, batch_
     sample ``starts[i]`` (every admissible start, ``0..T-H-1``, by default) and holds the
     predictions of samples ``starts[i] + 1 .. starts[i] + H``."""
     horizon, batch_size = _count(horizon, "horizon"), _count(batch_size, "batch_size")
+    _check_predictor(predict, "predictions")
     y0, u, _ = windows(flight, horizon)
     if starts is not None:
-        y0, u = y0[starts], u[starts]
+        s = np.asarray(starts)
+        if s.ndim != 1 or not (np.issubdtype(s.dtype, np.integer) or s.size == 0) or (s.size and (
+                s.min() < 0 or s.max() >= len(y0))):
+            raise ConfigError(f"predictions: starts must be whole numbers from 0 to {len(y0) - 1} (the windows of flight "
+                              f"{flight.name} at horizon {horizon}), got {np.asarray(starts).ravel()[:5].tolist()}"
+                              + (" ..." if np.asarray(starts).size > 5 else ""))
+        y0, u = y0[s], u[s]
+        starts = s
     out = np.empty((len(y0), horizon, 13))
     for b, pred in _predicted_batches(predict, y0, u, batch_size, flight, starts):
         out[b] = pred
@@ -378,6 +399,12 @@ def write_template(predict: Predictor, flight: Flight, path: str | os.PathLike, 
         frame.to_csv(tmp, index=False, float_format="%.10g", lineterminator="\n")
 
 
+def _check_predictor(predict: Any, where: str) -> None:
+    if not callable(predict):
+        raise ConfigError(f"{where}: predict must be a predictor, a function predict(y0 (B, 13), u (B, H, 4)) -> "
+                          f"(B, H, 13), got {type(predict).__name__}")
+
+
 def evaluate(
     predict: Predictor, flights: Sequence[Flight], *, horizon: int = 50, batch_size: int = 8192,
     keep: int | None = None,
@@ -390,8 +417,10 @@ def evaluate(
     ``keep``: also return, by flight name, the rollouts the figures and recordings show
     (:class:`Kept`, whole rollouts every ``keep`` starts), taken from the same rollouts.
     """
+    flights = flight_list(flights, "evaluate")
     if not flights:
         raise DataError("evaluate: no flights given")
+    _check_predictor(predict, "evaluate")
     horizon, batch_size = _count(horizon, "horizon"), _count(batch_size, "batch_size")
     if keep is not None:
         keep = _count(keep, "keep")
@@ -409,7 +438,7 @@ def evaluate(
 
 def score(y_true, y_pred) -> Scores:
     """Scores of predictions ``(N, H, 13)`` against truth ``(N, H, 13)``, pooled over windows."""
-    y_true, y_pred = _to_numpy(y_true), _to_numpy(y_pred)
+    y_true, y_pred = _to_numpy(y_true, "score: y_true"), _to_numpy(y_pred, "score: y_pred")
     if y_true.ndim != 3 or y_true.shape != y_pred.shape or y_true.shape[-1] != 13 or not y_true.size:
         raise PredictionError(f"expected two (N, H, 13) arrays with N, H >= 1, got {y_true.shape} and {y_pred.shape}")
     check_predictions(y_pred, "score")

@@ -472,7 +472,7 @@ def repair_rwlock(rwlock: Path = RWLOCK) -> bool:
         return True
 
 
-def _interrupt(signum, frame):  # SIGTERM ends the run as Ctrl-C does
+def _interrupt(signum, frame):  # SIGTERM and SIGHUP end the run as Ctrl-C does
     raise KeyboardInterrupt
 
 
@@ -562,6 +562,7 @@ def main(argv: list[str] | None = None) -> int:
     # an interruption is the runner's to pass on, also where its starter ignores SIGINT (`make repro &`)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.signal(signal.SIGTERM, _interrupt)
+    signal.signal(signal.SIGHUP, _interrupt)  # a closed terminal: the stages stopped as on Ctrl-C
     try:
         done, failed = run_graph(upstream, stages, jobs=a.jobs, order=order, stop=stages.stop)
     except KeyboardInterrupt:

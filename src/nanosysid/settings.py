@@ -137,7 +137,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("hypotheses.source", TEXT), ("hypotheses.out_dir", TEXT),
     # the campaign and the launcher
     ("campaign.worlds", COUNT), ("campaign.chunk", COUNT), ("campaign.duration", POSITIVE),
-    ("campaign.user_share", NONNEG), ("campaign.max_effects", NONNEG_COUNT), ("campaign.relevant", NONNEG),
+    ("campaign.user_share", SHARE), ("campaign.max_effects", NONNEG_COUNT), ("campaign.relevant", NONNEG),
     ("campaign.out_dir", TEXT), ("campaign.families.*", NONNEG_COUNT),
     ("launcher.workers", COUNT_OR_NULL), ("launcher.threads", COUNT), ("launcher.time_min", COUNT),
     ("launcher.mem_gb", POSITIVE), ("launcher.cpus_per_task", COUNT), ("launcher.partition", TEXT_OR_NULL),

@@ -42,9 +42,13 @@ def split_folder(
     both = set(train) & set(test)
     if both:
         raise ConfigError(f"split: trajectories {sorted(both)} are listed for both train and test")
+    if src.is_file():
+        raise DataError(f"{src}: a file, not a folder of flights (data.flights_dir names the folder that holds them)")
+    if not src.is_dir():
+        raise DataError(f"{src}: no such folder ({src.resolve()})")
     files = flight_catalog(src)
     if not files:
-        raise DataError(f"{src}: no flight CSV files found")
+        raise DataError(f"{src}: no flight CSV files found (in {src.resolve()})")
     parts: dict[str, list] = {"train": [], "test": []}
     for f in files:
         trajectory, _ = parse_flight_name(f.name)
@@ -57,6 +61,9 @@ def split_folder(
         parts[part].append(f)
     if not parts["test"]:
         raise DataError(f"{src}: no flight of the test trajectories {list(test)}")
+    if not parts["train"]:
+        raise DataError(f"{src}: no flight of the training trajectories {list(train)} (nor in a train/ folder or the "
+                        "manifest's train part); the models need training flights")
     summary: dict = {}
     read = {f: read_flight_csv(f.path, min_rows=horizon + 1) for flist in parts.values() for f in flist}
     if expect is not None:

@@ -110,3 +110,15 @@ def test_weights_changed_after_training_are_refused_by_the_content_hash(checkpoi
     with pytest.raises(DataError, match="resaved.pt: ") as e:
         load_checkpoint(bad)
     assert words in str(e.value), str(e.value)
+
+
+def test_a_checkpoint_in_torchs_older_format_is_named_so_not_damaged(checkpoint, tmp_path):
+    import torch
+
+    from nanosysid.errors import DataError
+    from nanosysid.models.learned import load_checkpoint
+
+    legacy = tmp_path / "legacy.pt"
+    torch.save(torch.load(checkpoint, weights_only=True), legacy, _use_new_zipfile_serialization=False)
+    with pytest.raises(DataError, match=r"legacy.pt: a checkpoint in torch's older format .* save it again"):
+        load_checkpoint(legacy)

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import shutil
 
+import pandas as pd
+
 import pytest
 
 from nanosysid import protocol
@@ -114,3 +116,48 @@ def test_a_flight_at_rest_beside_another_is_no_copy(tmp_path):
         f.u[:30] = 0.0
         write_flight_csv(f, tmp_path / "flat" / f"{f.name}.csv")
     assert split_folder(tmp_path / "flat", tmp_path / "split", train=["square"], test=["melon"], horizon=10)
+
+
+def changed_copy(src, dst, change):
+    """``src``'s flight written as ``dst`` with ``change`` applied to its table: a copy by value."""
+    df = pd.read_csv(src)
+    change(df)
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    df.to_csv(dst, index=False)
+
+
+BY_VALUE = [
+    ("rounded to 6 decimals by another tool", lambda df: df.update(df.round(6))),
+    ("every value times 1 + 1e-12", lambda df: df.update(df * (1 + 1e-12))),
+    ("its positions mirrored (x and y negated)", lambda df: df.update(df[["x", "y"]] * -1)),
+]
+
+
+@pytest.mark.parametrize("case, change", BY_VALUE, ids=[c for c, _ in BY_VALUE])
+def test_a_training_flight_copied_by_value_as_a_test_flight_is_refused(folder, case, change):
+    # no sample of the copy is bit-identical to the training flight's: the check compares values
+    changed_copy(folder / "flat/square_20250101_run1.csv", folder / "flat/melon_20250101_run7.csv", change)
+    with pytest.raises(DataError, match=r"melon_20250101_run7.csv: (6[5-9]|70) of its 70 distinct samples are the same "
+                                        r"samples to 4 decimals \(positions aside\) as in .*square_20250101_run1.csv"):
+        split_flat(folder)
+    assert not (folder / "split").exists()
+
+
+def test_a_split_without_training_flights_or_of_a_file_is_refused(folder, tmp_path):
+    with pytest.raises(DataError, match=r"no flight of the training trajectories \['hover'\]"):
+        split_folder(folder / "flat", tmp_path / "s1", train=["hover"], test=["melon"], horizon=10)
+    with pytest.raises(DataError, match=r"a file, not a folder of flights"):
+        split_folder(folder / "flat/melon_20250101_run1.csv", tmp_path / "s2", train=["square"], test=["melon"],
+                     horizon=10)
+    with pytest.raises(DataError, match=r"no such folder \(/"):
+        split_folder(tmp_path / "nowhere", tmp_path / "s3", train=["square"], test=["melon"], horizon=10)
+    assert not any((tmp_path / s).exists() for s in ("s1", "s2", "s3"))
+
+
+def test_a_header_padded_with_spaces_is_named_so(folder):
+    path = folder / "flat/melon_20250101_run1.csv"
+    text = path.read_text().splitlines()
+    text[0] = " , ".join(text[0].split(","))
+    path.write_text("\n".join(text) + "\n")
+    with pytest.raises(DataError, match=r"the header's names are padded with spaces"):
+        read_flight_csv(path)

@@ -69,3 +69,43 @@ def test_an_output_whose_parent_is_a_file_is_one_clear_error(tmp_path):
         with dataio.atomic_file(tmp_path / "a" / "b" / "c.json") as tmp:
             tmp.write_text("{}")
     assert (tmp_path / "a").read_text() == "a file"
+
+
+@pytest.mark.parametrize("raised", [
+    OSError(errno.ENOSPC, "No space left on device", "/the/input/flight.csv"),  # a copy names its source
+    OSError("Error writing bytes to file. Detail: [errno 28] No space left on device"),  # a library names nothing
+], ids=["an input named", "no path named"])
+def test_a_full_disk_names_the_output_being_written(tmp_path, capsys, params, raised):
+    out = tmp_path / "results" / "split"
+
+    def main(cfg):
+        with dataio.atomic_dir(out) as tmp:
+            (tmp / "a.csv").write_text("x")
+            raise raised
+
+    main.__module__ = "stages.faulty"
+    assert run_stage(main, description="", argv=["--params", str(params)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err == f"error: {out}: No space left on device; the disk is full: free space or choose an output on " \
+                  "another disk", err
+    assert [p.name for p in out.parent.iterdir()] == []
+
+
+def test_an_output_that_cannot_be_moved_aside_is_left_as_it_was_with_nothing_beside_it(tmp_path, monkeypatch):
+    # an immutable folder (chattr +i): the old output cannot be moved aside for the new one
+    out = tmp_path / "split"
+    with dataio.atomic_dir(out) as tmp:
+        (tmp / "a.csv").write_text("old")
+    real_replace = os.replace
+
+    def refuse_moving_out(src, dst):
+        if Path(src) == out:
+            raise OSError(errno.EPERM, "Operation not permitted", str(src))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(dataio.os, "replace", refuse_moving_out)
+    with pytest.raises(OSError):
+        with dataio.atomic_dir(out) as tmp:
+            (tmp / "a.csv").write_text("new")
+    assert (out / "a.csv").read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir() if p.name != "split" and not p.name.endswith(".nanosysid")] == []

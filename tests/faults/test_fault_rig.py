@@ -152,3 +152,39 @@ def test_a_local_folder_with_other_flights(tmp_path):
     local, m = local_copy(tmp_path)
     shutil.copy(LOG, local / "raw" / "square_20251018_run1.parquet")
     fetch_refused(tmp_path, local, m, r"square_20251018_run1\.parquet: not in the manifest")
+
+
+def test_a_log_whose_battery_reading_failed_keeps_its_flight(tmp_path):
+    # the battery's voltage is a reading a log may lack: its flight is read without it
+    report = extract_logs(with_log(tmp_path, lambda df: df.assign(Vbat=np.nan)), tmp_path / "extract", SPEC)
+    status = pd.read_parquet(tmp_path / "extract" / "square_20251017_run2" / "status.parquet")
+    assert report["flights"]["square_20251017_run2"]["kept"] and len(status) > 100
+    assert status["battery_voltage"].isna().all() and status["flying"].notna().all()
+
+
+def test_a_reference_without_its_yaw(tmp_path):
+    refused(tmp_path, with_log(tmp_path, lambda df: df.assign(yaw_r=np.nan)),
+            r"column 'yaw_r' has no reading in the flight segment")
+
+
+def test_a_flag_written_as_text(tmp_path):
+    refused(tmp_path, with_log(tmp_path, lambda df: df.assign(is_flying=df["is_flying"].map(str))),
+            r"column 'is_flying' holds (object|str) values \('(True|False)'\), not numbers or flags")
+
+
+def test_a_motor_command_off_its_scale(tmp_path):
+    refused(tmp_path, with_log(tmp_path, lambda df: df.assign(m3_thrust=df["m3_thrust"].where(df.index != 250, 8.2))),
+            r"column 'm3_thrust', row 250: a motor command of 8.2, outside its 0-1 scale")
+
+
+@pytest.mark.parametrize("what", ["a file", "no such folder"])
+def test_a_rig_local_that_is_no_folder_is_named_when_upstream_cannot_be_reached(tmp_path, what):
+    local = tmp_path / "data"
+    if what == "a file":
+        local.write_text("not a folder")
+    manifest = tmp_path / "SHA256SUMS"
+    manifest.write_text(f"{'0' * 64}  raw/a.parquet  raw/a.parquet\n")
+    with pytest.raises(DataError, match=rf"rig.local = {local} is {what}.* which cannot be reached"):
+        rigfetch.fetch(manifest, tmp_path / "out", local=local, repository=str(tmp_path / "no-repository"),
+                       commit="0" * 40)
+    assert not (tmp_path / "out").exists()

@@ -56,7 +56,9 @@ SCRIPT = textwrap.dedent('''
     raise SystemExit(run_stage(main, description="", argv=["--params", sys.argv[4]]))
 ''')
 
-CASES = [(sig, mode) for sig in (signal.SIGTERM, signal.SIGINT) for mode in ("file", "folder", "train")]
+# SIGHUP: the terminal or ssh session closed; a training (the longest write) is its case
+CASES = [(sig, mode) for sig in (signal.SIGTERM, signal.SIGINT) for mode in ("file", "folder", "train")] + [
+    (signal.SIGHUP, "train")]
 
 
 @pytest.mark.parametrize("sig,mode", CASES, ids=[f"{s.name} while writing a {m}" for s, m in CASES])

@@ -60,6 +60,9 @@ CSV = [
      r"m1_rads.*a 60th"),
     ("rotor speeds halved (pole pairs doubled)", _scale([f"m{i}_rads" for i in range(1, 5)], 0.5), r"m1_rads.*pole pairs"),
     ("rotor speeds 60 times", _scale([f"m{i}_rads" for i in range(1, 5)], 60.0), r"m1_rads.*60 times"),
+    ("rotor speeds doubled (pole pairs halved)", _scale([f"m{i}_rads" for i in range(1, 5)], 2.0),
+     r"m1_rads.*twice the speed: the pole pairs halved"),
+    ("positions in cm", _scale(["x", "y", "z"], 100.0), r"x, y, z.*in cm rather than m"),
     ("rotor speeds negated", _scale([f"m{i}_rads" for i in range(1, 5)], -1.0), r"m1_rads.*sign"),
     ("gyro in deg/s", _scale(["wx", "wy", "wz"], 180 / np.pi), r"w[xyz].*deg/s"),
     ("velocities ten times", _scale(["vx", "vy", "vz"], 10.0), r"vx, vy, vz.*ten times too large"),
@@ -123,3 +126,31 @@ def test_a_rig_log_in_another_unit_or_convention_is_refused_by_the_rig_extract(t
         extract_logs(raw, tmp_path / "extract", spec, EXPECT)
     assert "square_20251017_run2.parquet" in str(e.value)
     assert not (tmp_path / "extract").exists()
+
+
+# the rig's settings that convert its eRPM, set wrong: the same check names the speeds' level
+@pytest.mark.parametrize("change, words", [
+    (dict(pole_pairs=12), r"m1_erpm.*times the expected: half the speed: the pole pairs doubled"),
+    (dict(erpm_unit=60), r"m1_erpm.*60 times: eRPM units"),
+    (dict(max_erpm=1), r"column 'm1_erpm': every reading lies above rig.logs.max_erpm = 1 .*another unit, or a "
+                       r"max_erpm too low"),
+], ids=["12 pole pairs for 6", "an eRPM unit of 60", "a max_erpm of 1"])
+def test_a_rig_setting_that_converts_the_rotor_speeds_wrong_is_named(tmp_path, change, words):
+    spec = LogSpec.from_mapping(dict(RIG, flights={"square_20251017_run2": "square_20251017_run2"}, keep_incomplete=True,
+                                     **change))
+    with pytest.raises(DataError, match=words):
+        extract_logs(RIG_DATA, tmp_path / "extract", spec, EXPECT)
+    assert not (tmp_path / "extract").exists()
+
+
+def test_a_csv_flight_with_positions_of_1e300_is_refused_by_the_split(tmp_path):
+    flights = tmp_path / "flights"
+    write_flight_csv(_flight("chirp_20250101_run1", 0), flights / "chirp_20250101_run1.csv")
+    bad = flights / "melon_20250101_run1.csv"
+    write_flight_csv(_flight("melon_20250101_run1", 37), bad)
+    df = pd.read_csv(bad)
+    df.loc[300:, "x"] = 1e300
+    df.to_csv(bad, index=False)
+    with pytest.raises(DataError, match=r"melon_20250101_run1.csv: column\(s\) 'x' against the velocity's integral"):
+        split_folder(flights, tmp_path / "split", train=["chirp"], test=["melon"], horizon=10, expect=EXPECT)
+    assert not (tmp_path / "split").exists()

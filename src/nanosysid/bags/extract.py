@@ -22,6 +22,7 @@ from tqdm.auto import tqdm
 from nanosysid.bags.messages import typestore
 from nanosysid.dataio import atomic_dir, check_finite
 from nanosysid.errors import ConfigError, DataError
+from nanosysid.preprocess import STREAM_COLUMNS
 
 __all__ = ["find_bags", "extract_bag", "extract_folder", "check_topics", "check_crc", "STREAM_COLUMNS", "MAX_CLOCK_STEP", "CRC_KEY"]
 
@@ -69,14 +70,6 @@ def _setpoint(m) -> list[float]:
     return [p.x, p.y, p.z, yaw]
 
 
-STREAM_COLUMNS: dict[str, list[str]] = {
-    "mocap": ["x", "y", "z", "qx", "qy", "qz", "qw"],
-    "odom": ["x", "y", "z", "qx", "qy", "qz", "qw", "vx", "vy", "vz"],
-    "imu": ["wx", "wy", "wz", "ax", "ay", "az"],
-    "motors": ["m1", "m2", "m3", "m4"],
-    "status": ["battery_voltage", "armed", "flying"],
-    "setpoint": ["x", "y", "z", "yaw"],
-}
 _READERS: dict[str, Callable[[Any], list[float]]] = {
     "mocap": _pose, "odom": _odom, "imu": _imu, "status": _status, "setpoint": _setpoint,
 }

@@ -90,7 +90,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from nanosysid import protocol
-from nanosysid.dataio import Flight
+from nanosysid.dataio import Flight, check_distinct, flight_list
 from nanosysid.discover.analysis import disagreement
 from nanosysid.discover.assemble import assemble, sindy_baseline
 from nanosysid.discover.fit import VELOCITIES, with_position_velocity
@@ -188,8 +188,17 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             :func:`~nanosysid.discover.fit.with_position_velocity`). The test flights are scored
             as recorded either way.
     """
+    train_flights = given = flight_list(train_flights, "discover.run", "train_flights")
+    test_flights = flight_list(test_flights, "discover.run", "test_flights")
     if len(train_flights) < 1:
         raise DataError("discover needs at least 1 training flight")
+    if not test_flights:
+        raise DataError("discover.run: test_flights is empty; the nominal and augmented models are scored on them")
+    bad = [d for d in delays if isinstance(d, bool) or not isinstance(d, (int, float, np.integer, np.floating))
+           or not np.isfinite(d) or d < 0]
+    if bad:
+        raise ConfigError(f"discover.run: delays must be finite numbers of seconds >= 0 (a rotor speed is recorded "
+                          f"after it acts, never before), got {bad[0]!r}")
     _check_settings(folds=folds, block=block, alpha=alpha, floor=floor, share=share, window=window, order=order)
     if velocity not in VELOCITIES:
         raise ConfigError(f"discover: velocity must be one of {', '.join(VELOCITIES)}, got {velocity!r}")
@@ -203,6 +212,7 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
     search = Search(train_flights, v, window, order, block, folds, hold_k_m=hold_k_m and vehicle is not None,
                     hold_nominal=hold_nominal and vehicle is not None)
     _check_blocks(search, alpha, block)
+    check_distinct([*given, *test_flights])  # a flight fitted on is no test of the fit
     delays = tuple(float(d) for d in delays)
     total = float(search.grams(0.0).et.sum())
 

@@ -202,6 +202,12 @@ def load_checkpoint(path: str | Path) -> tuple[SequenceModel, dict[str, Any]]:
                         "refused, since loading it would run its code. Save models with "
                         "nanosysid.models.learned.save_checkpoint") from None
     except (RuntimeError, EOFError, OSError, zipfile.BadZipFile, ValueError) as e:
+        with open(path, "rb") as fh:
+            legacy = isinstance(e, zipfile.BadZipFile) and fh.read(2) == b"\x80\x02"  # a pickle, protocol 2
+        if legacy:
+            raise DataError(f"{path}: a checkpoint in torch's older format (torch.save(..., "
+                            "_use_new_zipfile_serialization=False)), not the zip format whose entries this loader "
+                            "checks; save it again with nanosysid.models.learned.save_checkpoint") from None
         raise DataError(f"{path}: not a readable checkpoint, the file is damaged or truncated "
                         f"({type(e).__name__}: {str(e).splitlines()[0] if str(e) else ''})") from None
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:

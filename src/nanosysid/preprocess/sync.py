@@ -40,6 +40,7 @@ from tqdm.auto import tqdm
 
 from nanosysid.dataio import atomic_dir, atomic_file, check_finite, session_of, write_json
 from nanosysid.errors import ConfigError, DataError
+from nanosysid.preprocess import STREAM_COLUMNS
 from nanosysid.settings import configured
 
 __all__ = ["SyncConfig", "sync_flight", "sync_folder", "clock_fit", "xcorr_lag", "LagEvidence", "LagEstimate",
@@ -208,6 +209,10 @@ def motor_lag_evidence(name: str, imu: pd.DataFrame, motors: pd.DataFrame, cfg: 
     t_mot = motors["t_src"].to_numpy()
     lo, hi = max(t_imu[0], t_mot[0]), min(t_imu[-1], t_mot[-1])
     if hi - lo < 2 * cfg.max_lag + 1.0:
+        if hi - lo >= 1.0:  # they overlap: the search for the lag reaches beyond the flight
+            raise DataError(f"{name}: the motor telemetry and the IMU overlap for {hi - lo:.3g} s, less than twice "
+                            f"preprocess.sync.max_lag = {cfg.max_lag:g} s plus 1 s: a lag search that long needs a "
+                            "longer flight, or a smaller max_lag")
         raise DataError(f"{name}: the motor telemetry and the IMU never overlap in time")
     step = cfg.xcorr_step
     tf = np.arange(lo, hi, step)
@@ -780,6 +785,24 @@ def extracted_flights(folder: Path) -> list[Path]:
     return flights
 
 
+def read_stream(path: Path, stream: str) -> pd.DataFrame:
+    """One extracted stream's table, with its clocks and the columns the extract stage writes.
+
+    Raises:
+        DataError: a file that is not a readable parquet table (cut short, say), or a column missing.
+    """
+    try:
+        table = pd.read_parquet(path)
+    except Exception as e:  # pyarrow raises several types for a damaged file
+        raise DataError(f"{path}: not a readable parquet file ({type(e).__name__}: {str(e).splitlines()[0][:200]}); "
+                        "rerun the extract stage") from None
+    missing = [c for c in ("t_recv", "t_src", *STREAM_COLUMNS.get(stream, ())) if c not in table.columns]
+    if missing:
+        raise DataError(f"{path}: the {stream} stream lacks column(s) {', '.join(map(repr, missing))}; rerun the "
+                        "extract stage")
+    return table
+
+
 def sync_folder(extract_dir: Path, out_dir: Path, report_dir: Path, cfg: SyncConfig) -> list[dict]:
     """Synchronise every extracted flight; writes ``<flight>.parquet`` and ``sync.json``/``sync.md``.
 
@@ -796,10 +819,10 @@ def sync_folder(extract_dir: Path, out_dir: Path, report_dir: Path, cfg: SyncCon
             f = d / f"{stream}.parquet"
             if not f.exists():
                 raise DataError(f"{f}: missing (the {stream} stream was not extracted)")
-            tables[d.name][stream] = pd.read_parquet(f)
+            tables[d.name][stream] = read_stream(f, stream)
         for stream in OPTIONAL_STREAMS:
             if (d / f"{stream}.parquet").exists():
-                tables[d.name][stream] = pd.read_parquet(d / f"{stream}.parquet")
+                tables[d.name][stream] = read_stream(d / f"{stream}.parquet", stream)
         t = tables[d.name]
         evidence[d.name] = motor_lag_evidence(str(d), t["imu"], t["motors"], cfg, odom=t["odom"],
                                               setpoint=setpoint_on_stm(t["setpoint"], *onboard_clock(t["odom"], t["imu"])))

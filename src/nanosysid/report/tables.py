@@ -174,7 +174,11 @@ def load_scores(eval_dir: str | Path, names: Sequence[str]) -> dict[str, Scores]
         f = Path(eval_dir) / name / "scores.json"
         if not f.exists():
             raise DataError(f"{f}: no evaluation of model {name!r}")
-        rows[name] = Scores.from_dict(json.loads(f.read_text()))
+        try:
+            rows[name] = Scores.from_dict(json.loads(f.read_text()))
+        except (ValueError, KeyError, TypeError) as e:  # cut short, hand-edited or of another format
+            raise DataError(f"{f}: not the evaluation's scores ({type(e).__name__}: {e}); rerun the evaluate stage "
+                            f"of {name!r}") from None
     _horizons(rows, ())  # one horizon, checked before any figure or table is written
     return rows
 

@@ -104,8 +104,9 @@ def local_source(local: str | Path | None, entries: Sequence[Entry]) -> Path | N
     return folder
 
 
-def _upstream(repository: str, commit: str):
-    """DVC's file system over the upstream git repository at ``commit`` (one clone).
+def _upstream(repository: str, commit: str, local: str | Path | None = None):
+    """DVC's file system over the upstream git repository at ``commit`` (one clone); ``local``, the
+    rig.local that was not a folder of the files, named where the repository cannot be reached.
 
     Raises:
         DataError: the repository cannot be reached or has no such commit.
@@ -119,6 +120,11 @@ def _upstream(repository: str, commit: str):
         return fs
     except (DvcException, OSError, ValueError) as e:
         cause = f"{type(e).__name__}: {e}" + (f"; {e.__cause__}" if e.__cause__ else "")
+        if local is not None:
+            what = "a file, not a folder" if Path(local).is_file() else "no such folder"
+            raise DataError(f"rig.local = {local} is {what} ({Path(local).resolve()}), so the files were fetched from "
+                            f"{repository} at {commit}, which cannot be reached ({cause}); set rig.local to the folder "
+                            "holding the campaign's files") from None
         raise DataError(f"{repository} at {commit}: cannot be fetched through DVC ({cause}); without a network, set "
                         "rig.local to a folder holding the campaign's files") from None
 
@@ -144,7 +150,7 @@ def fetch(manifest: str | Path, out_dir: str | Path, *, local: str | Path | None
     """
     entries = read_manifest(manifest)
     folder = local_source(local, entries)
-    fs = _upstream(repository, commit) if folder is None else None
+    fs = _upstream(repository, commit, local) if folder is None else None
     with atomic_dir(out_dir, inputs=[folder] if folder else ()) as tmp:
         for e in tqdm(entries, desc="fetch", unit="file", disable=None):
             dest = tmp / e.path

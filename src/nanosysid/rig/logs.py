@@ -66,9 +66,11 @@ COMMANDS = {"m1_thrust": "cmd_m1", "m2_thrust": "cmd_m2", "m3_thrust": "cmd_m3",
 COPY_CORRELATION = 0.99
 # what a stream may hold as NaN: a missed motor reading (the sync marks it), the motion capture's
 # attitude the logs lack, a flag a log does not carry
-MAY_BE_NAN = {"motors": ("m1", "m2", "m3", "m4"), "mocap": ("qx", "qy", "qz", "qw"), "status": ("battery_voltage", "armed")}
+MAY_BE_NAN = {"motors": ("m1", "m2", "m3", "m4"), "mocap": ("qx", "qy", "qz", "qw"), "status": ("battery_voltage", "armed"),
+              "controller": ("vbat",)}
 # a landing lowers the reference's height by at least this much (m) over its phase
 LANDING_DROP = 0.1
+COMMAND_SLACK = 0.01  # a motor command beyond 0-1 by more than this is no command
 FRAMES = ("world", "body")
 
 
@@ -133,6 +135,10 @@ def read_log(path: Path, aliases: Mapping[str, str]) -> tuple[pd.DataFrame, list
     if missing:
         raise DataError(f"{path}: missing column(s) {', '.join(repr(c) for c in missing)} (a rig log has "
                         f"{', '.join(REQUIRED)}; rig.logs.aliases maps a column spelt otherwise)")
+    for c in [*REQUIRED, *[k for k in (*COMMANDS, "Vbat", "is_armed") if k in df.columns]]:
+        if not (pd.api.types.is_numeric_dtype(df[c]) or pd.api.types.is_bool_dtype(df[c])):
+            first = df[c].dropna().iloc[0] if df[c].notna().any() else None
+            raise DataError(f"{path}: column {c!r} holds {df[c].dtype} values ({first!r}), not numbers or flags")
     t = df["t"].to_numpy(dtype=np.float64)
     if not np.isfinite(t).all():
         i = int(np.argmax(~np.isfinite(t)))
@@ -287,8 +293,9 @@ def log_streams(df: pd.DataFrame, spec: LogSpec, where: str,
 
     def stream(new: np.ndarray, cols: dict[str, np.ndarray], t_recv: np.ndarray, name: str,
                t_src: np.ndarray = t) -> pd.DataFrame:
-        vals = np.column_stack(list(cols.values()))
-        ok = np.isfinite(vals).all(axis=1)
+        vals = np.column_stack([v for k, v in cols.items() if k not in MAY_BE_NAN.get(name, ())] or
+                               list(cols.values()))
+        ok = np.isfinite(vals).all(axis=1)  # a reading a stream may lack (a log's battery) drops no row
         if name != "motors":
             dropped = int((new & ~ok).sum())
             if dropped:
@@ -352,6 +359,10 @@ def log_streams(df: pd.DataFrame, spec: LogSpec, where: str,
         rules["consistency"] = check_consistency(t[rows], rads[rows], y[rows], a_body[rows], expect, where, LOG_COLUMNS)
 
     # the host's setpoints: the reference inside the flight segment, zero outside (as the rig sends)
+    yaw_r = df["yaw_r"].to_numpy(dtype=np.float64)
+    if not np.isfinite(yaw_r[seg]).any():
+        raise DataError(f"{where}: column 'yaw_r' has no reading in the flight segment: the reference's yaw is unknown "
+                        "(a zero in its place would be a reference the vehicle was not given)")
     pr = values(["x_r", "y_r", "z_r"])
     inside = seg[:, None] & np.isfinite(pr)
     streams["setpoint"] = stream(new_ref, {"x": np.where(inside, pr, 0.0)[:, 0], "y": np.where(inside, pr, 0.0)[:, 1],
@@ -374,6 +385,14 @@ def log_streams(df: pd.DataFrame, spec: LogSpec, where: str,
                                        f"{COPY_CORRELATION}): no yaw torque; left out"
     if "Vbat" in df:
         commands["vbat"] = df["Vbat"].to_numpy(dtype=np.float64)
+    for i in range(1, 5):  # the motor commands are a share of full power
+        c = commands.get(f"cmd_m{i}")
+        if c is not None:
+            off = np.isfinite(c) & ((c < -COMMAND_SLACK) | (c > 1 + COMMAND_SLACK))
+            if off.any():
+                j = int(np.argmax(off))
+                raise DataError(f"{where}: column 'm{i}_thrust', row {j}: a motor command of {c[j]:.4g}, outside its "
+                                "0-1 scale (a damaged log?)")
     if commands:
         streams["controller"] = stream(new_motor, commands, ts_motor, "controller")
     rules["missed"] = missed

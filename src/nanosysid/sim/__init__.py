@@ -20,7 +20,10 @@ from __future__ import annotations
 
 from typing import Mapping, Sequence
 
+import numpy as np
+
 from nanosysid.dataio import Flight
+from nanosysid.errors import ConfigError
 from nanosysid.sim.oracle import Oracle
 from nanosysid.sim.simulator import FlightSpec, SimConfig, simulate, trajectory_reference
 from nanosysid.sim.world import DEFAULT_WORLD, EFFECTS, ExtraWrench, World
@@ -39,8 +42,14 @@ def _world(effects: Mapping[str, float] | None) -> World:
 def flight_specs(runs: Mapping[str, int], effects: Mapping[str, float] | None = None, seed: int = 0, *,
                  extra_wrench: ExtraWrench | None = None) -> list[FlightSpec]:
     """Runs 1..n of each trajectory of ``runs`` in one world, as :class:`FlightSpec`."""
-    return [FlightSpec(traj, k, effects=effects, seed=seed, extra_wrench=extra_wrench)
-            for traj, n in runs.items() for k in range(1, int(n) + 1)]
+    for traj, n in runs.items():
+        if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
+            raise ConfigError(f"runs: {traj!r} = {n!r}; the number of runs of a trajectory is a whole number >= 0")
+    specs = [FlightSpec(traj, k, effects=effects, seed=seed, extra_wrench=extra_wrench)
+             for traj, n in runs.items() for k in range(1, int(n) + 1)]
+    if not specs:
+        raise ConfigError(f"runs: {dict(runs)} asks for no flight")
+    return specs
 
 
 def simulate_flights(
@@ -76,9 +85,19 @@ def simulate_flight(
     extra_wrench: ExtraWrench | None = None,
     **options,
 ) -> Flight:
-    """One flight; the same as that flight from :func:`simulate_flights` with the same seed."""
+    """One flight; the same as that flight from :func:`simulate_flights` with the same seed.
+
+    Raises:
+        ConfigError: a flight that leaves the room or the floor (its effects or extra wrench beyond
+            what the controller flies), as the simulate stage refuses it.
+    """
+    from nanosysid.sim.envelope import check_flown
+
     spec = FlightSpec(trajectory, run, effects=effects, seed=seed, extra_wrench=extra_wrench)
-    return simulate([spec], progress=options.pop("progress", False), **options)[0]
+    flight = simulate([spec], progress=options.pop("progress", False), **options)[0]
+    world = "the default world" if effects is None else f"the effects {dict(effects)}"
+    check_flown([flight], world + (" and the extra_wrench" if extra_wrench is not None else ""))
+    return flight
 
 
 def oracle(effects: Mapping[str, float] | None = None, *, vehicle: Vehicle | None = None, substeps: int = 4,

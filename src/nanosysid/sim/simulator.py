@@ -134,6 +134,17 @@ class FlightSpec:
     extra_wrench: ExtraWrench | None = None
     name: str | None = None
 
+    def __post_init__(self) -> None:
+        for key, least in (("run", 1), ("seed", 0)):
+            v = getattr(self, key)
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < least:
+                raise ConfigError(f"FlightSpec: {key} must be a whole number >= {least}, got {v!r}")
+        if self.effects is not None:
+            self.world  # noqa: B018  (the strengths checked where the flight is named)
+        if self.extra_wrench is not None and not callable(self.extra_wrench):
+            raise ConfigError(f"FlightSpec: extra_wrench must be a function fn(t, x, omega, omega_dot) -> (force, "
+                              f"torque), got {type(self.extra_wrench).__name__}")
+
     @property
     def world(self) -> World:
         return World(dict(DEFAULT_WORLD) if self.effects is None else dict(self.effects))
@@ -215,6 +226,28 @@ def _compiled_batch(n: int) -> int:
     return max(8, 1 << (n - 1).bit_length()) if n <= 64 else -(-n // 64) * 64
 
 
+def _probe_extra(fn: ExtraWrench, vehicle: Vehicle) -> None:
+    """Call a user's extra wrench once on a hovering state, before the flight: it must give a
+    force and a torque of the state's leading shape and 3 components, finite. Raises ConfigError
+    naming extra_wrench and what it gave."""
+    x = torch.zeros(1, 13, dtype=torch.float64)
+    x[:, 2], x[:, 9] = 1.0, 1.0
+    omega = torch.full((1, 4), float(vehicle.hover_speed), dtype=torch.float64)
+    try:
+        out = fn(torch.zeros(1, dtype=torch.float64), x, omega, torch.zeros(1, 4, dtype=torch.float64))
+        force, torque = out
+    except Exception as e:  # a user's function: whatever it raised, named with the call
+        raise ConfigError(f"extra_wrench: called as fn(t (1,), x (1, 13), omega (1, 4), omega_dot (1, 4)) on a "
+                          f"hovering state, it did not give (force, torque): {type(e).__name__}: {e}") from None
+    for what, v in (("force", force), ("torque", torque)):
+        shape = tuple(getattr(v, "shape", ()))
+        if not torch.is_tensor(v) or shape != (1, 3):
+            raise ConfigError(f"extra_wrench: its {what} on states of shape (1, 13) must be a torch tensor of shape "
+                              f"(1, 3) (N or N m, body frame), got {type(v).__name__} of shape {shape}")
+        if not torch.isfinite(v).all():
+            raise ConfigError(f"extra_wrench: its {what} on a hovering state is {v.tolist()}; a wrench must be finite")
+
+
 def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfig, date: str, progress: bool,
                   shown: int) -> RawRecord:
     """The batch ``flights`` simulated; the record of its first ``shown``."""
@@ -226,6 +259,8 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
     keys = [flight_key(f.seed, r.name, f.run) for f, r in zip(flights, refs)]
     rngs = [np.random.default_rng(k) for k in keys]
     worlds = [f.world for f in flights]
+    for fn in {id(f.extra_wrench): f.extra_wrench for f in flights if f.extra_wrench is not None}.values():
+        _probe_extra(fn, vehicle)
 
     dt = 1.0 / cfg.physics_rate
     ctrl_every = round(cfg.physics_rate / cfg.control_rate)
@@ -280,7 +315,12 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
     B = shown  # the padding's copies are dropped
     rec = torch.cat((torch.stack(states, 1), torch.stack(cmds, 1)), -1)[:B]
     if not torch.isfinite(rec).all():
-        raise RuntimeError("simulation diverged (non-finite state); check the controller gains and motor model")
+        i = int((~torch.isfinite(rec).reshape(B, -1).all(1)).nonzero()[0])
+        f = flights[i]
+        world = "the default world" if f.effects is None else f"effects {dict(f.effects)}"
+        extra = " with its extra_wrench" if f.extra_wrench is not None else ""
+        raise ConfigError(f"{f.flight_name(date)}: the simulation diverged (a state that is no number) in {world}"
+                          f"{extra}: beyond what the controller flies (or check the controller gains and motor model)")
 
     # body force and torque: the rotors' of the whole record at once, the world's as the loop had it
     t = np.arange(n_steps) * dt - cfg.preroll

@@ -430,9 +430,16 @@ class World:
     strengths: Mapping[str, float]
 
     def __post_init__(self) -> None:
-        unknown = set(self.strengths) - set(EFFECTS)
+        from nanosysid.errors import ConfigError  # the errors a user's mistake raises (no import cycle)
+
+        unknown = sorted(set(self.strengths) - set(EFFECTS))
         if unknown:
-            raise KeyError(f"unknown effects {sorted(unknown)}; known: {', '.join(EFFECTS)}")
+            raise ConfigError(f"effects: unknown effect {unknown[0]!r}; the world's effects are {', '.join(EFFECTS)}")
+        for name, value in self.strengths.items():
+            ok = not isinstance(value, bool) and isinstance(value, (int, float, np.integer, np.floating))
+            if not ok or not np.isfinite(value) or value < 0:
+                raise ConfigError(f"effects: {name!r} = {value!r}; a world effect's strength is a finite number >= 0 "
+                                  "(0 none, 1 the default world's)")
 
     def s(self, name: str) -> float:
         return float(self.strengths.get(name, 0.0))

@@ -32,6 +32,8 @@ import lz4.block
 import pyarrow as pa
 import xxhash
 
+from nanosysid.errors import DataError
+
 __all__ = ["canonical", "with_footer", "check"]
 
 _END, _SET_STORE_INFO, _ARROW_MSG = 0, 1, 2  # message kinds
@@ -174,7 +176,15 @@ def canonical(data: bytes, recording_id: str) -> bytes:
         data alone; without the footer (:func:`with_footer` adds one).
     """
     if data[:4] != b"RRF2":
-        raise ValueError("not an RRD stream (no RRF2 header)")
+        raise DataError("rrd.canonical: data is not an RRD stream (no RRF2 header)")
+    try:
+        return _canonical(data, recording_id)
+    except (struct.error, lz4.block.LZ4BlockError, IndexError, ValueError) as e:
+        raise DataError(f"rrd.canonical: data is not a whole RRD stream, cut short or damaged ({type(e).__name__}: "
+                        f"{str(e).splitlines()[0] if str(e) else ''})") from None
+
+
+def _canonical(data: bytes, recording_id: str) -> bytes:
     ids = _Ids(recording_id)
     out, i = [data[:12]], 12
     while i < len(data):
@@ -214,7 +224,8 @@ def with_footer(data: bytes) -> bytes:
         r = subprocess.run([sys.executable, "-m", "rerun_cli", "rrd", "migrate", str(path)],
                            capture_output=True, text=True)
         if r.returncode != 0:
-            raise RuntimeError(f"rerun rrd migrate failed: {r.stderr.strip()}")
+            raise DataError(f"rrd.with_footer: rerun rrd migrate refused the stream (cut short or damaged?): "
+                            f"{r.stderr.strip().splitlines()[-1] if r.stderr.strip() else r.returncode}")
         data = path.read_bytes()
     offset, size = struct.unpack_from("<QQ", data, len(data) - _TRAILER)
     manifests = []
