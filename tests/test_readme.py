@@ -369,32 +369,33 @@ def test_readme_campaign_section_is_the_summary_the_campaigns_lock_records(monke
     lock = yaml.safe_load((ROOT / "campaign" / "dvc.lock").read_text())
     (out,) = lock["stages"]["campaign@sim"]["outs"]
     assert sources["reports/campaign"] == out["md5"]
-    summary = Path("reports/campaign/summary.json")
+    summary = Path("reports/campaign/summary.md")
     if summary.exists() and hashlib.md5(summary.read_bytes()).hexdigest() == sources[summary.as_posix()]:
         record = Path("reports/campaign-repro.json")
         assert part == readme.campaign_section(summary, Path("campaign/dvc.lock"), record)
 
 
-def test_the_campaign_section_counts_by_hand_and_refuses_a_summary_its_lock_does_not_record(tmp_path):
+def test_the_campaign_section_copies_its_reports_counts_and_refuses_one_its_lock_does_not_record(tmp_path):
     import pytest
 
     out = tmp_path / "reports" / "campaign"
     out.mkdir(parents=True)
-    summary = {"worlds": 10, "failed": 1, "named": 8, "precision": 0.875, "clean_worlds": 4, "clean_without_finding": 0.75,
-               "out_of_library_worlds": 2, "out_of_library_without_false_name": 1.0, "coefficients_checked": 20,
-               "coefficients_covered": 0.9, "state_worlds": 3, "half_gap_closed": 2 / 3, "gap_closed_median": 0.5,
-               "families": {"thrust_lag": {"worlds": 5, "slow_actuation_named": 4, "stateless": 0, "of_time": 1}}}
-    (out / "summary.json").write_text(json.dumps(summary))
+    (out / "summary.md").write_text(
+        "# Discovery over hidden worlds\n\n10 worlds, 1 where it diverged.\n\n| recall | x |\n|---|---|\n| a | 1 |\n\n"
+        "- named verdicts: 8, right 88 %\n- clean worlds: 4\n\n## Identification over the worlds\n\n- k_F: ok\n\n"
+        "## A function of the state, of the input history, or of time\n\nWorlds of one kind.\n\n| family | worlds |\n"
+        "|---|---|\n| thrust_lag | 5 |\n\nAfter.\n")
     lock = tmp_path / "dvc.lock"
     lock.write_text(yaml.safe_dump({"schema": "2.0", "stages": {"campaign@sim": {
         "outs": [{"path": out.as_posix(), "md5": "ab" + "0" * 30 + ".dir"}]}}}))
     cache = tmp_path / "cache"
-    text = readme.campaign_section(out / "summary.json", lock, None, cache)  # no listing in the cache: taken
-    assert "named verdicts: 8, right in 87.5 %" in text and "without any finding in 75 %" in text
-    assert "interval covering it in 90 %" in text and "closed in 66.7 % (median 50 %)" in text
-    assert "| thrust_lag | 5 | 4 | 0 | 1 |" in text and "ab" + "0" * 30 + ".dir" in text
+    text = readme.campaign_section(out / "summary.md", lock, None, cache)  # no listing in the cache: taken
+    body = text.splitlines()[3:-3]
+    assert body == ["10 worlds, 1 where it diverged.", "", "- named verdicts: 8, right 88 %", "- clean worlds: 4", "",
+                    "| family | worlds |", "|---|---|", "| thrust_lag | 5 |", ""], body
+    assert "ab" + "0" * 30 + ".dir" in text and "k_F" not in text and "| a | 1 |" not in text
     listing = cache / "files" / "md5" / "ab" / ("0" * 30 + ".dir")
     listing.parent.mkdir(parents=True)
-    listing.write_text(json.dumps([{"relpath": "summary.json", "md5": "f" * 32}]))
+    listing.write_text(json.dumps([{"relpath": "summary.md", "md5": "f" * 32}]))
     with pytest.raises(ValueError, match="is not the one .* records"):
-        readme.campaign_section(out / "summary.json", lock, None, cache)
+        readme.campaign_section(out / "summary.md", lock, None, cache)

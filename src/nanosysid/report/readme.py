@@ -24,7 +24,7 @@ The world section is the table of the simulated world's effects, from their reco
 (:data:`nanosysid.sim.world.RECORDS`).
 
 The campaign section is the headline of the campaign's pipeline (``make campaign``,
-``campaign/dvc.yaml``): its summary (``reports/campaign/summary.json``), stamped with the hash
+``campaign/dvc.yaml``): its report's counts (``reports/campaign/summary.md``), stamped with the hash
 ``campaign/dvc.lock`` records for its outputs, and its time from ``reports/campaign-repro.json``.
 
 The reliability section counts the hostile-input matrix's cases per class of fault from its
@@ -34,6 +34,7 @@ record, ``tests/faults/record.json``, which a full run of ``make test`` writes.
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import shutil
 from pathlib import Path
@@ -286,10 +287,6 @@ def update_world(readme: Path) -> bool:
     return _replace(readme, WORLD_BEGIN, WORLD_END, world_section())
 
 
-def _pct(x: float) -> str:
-    return f"{100 * x:.1f} %".replace(".0 %", " %")
-
-
 def recorded_dir(lock: Path, out: str) -> str:
     """The hash a pipeline's lock records for the output folder ``out`` (DVC's ``<md5>.dir``)."""
     import yaml
@@ -309,49 +306,42 @@ def _listed_md5(cache: Path, dir_md5: str, relpath: str) -> str | None:
     return next((e["md5"] for e in json.loads(listing.read_text()) if e["relpath"] == relpath), None)
 
 
-def campaign_section(summary_json: Path, lock: Path, record_json: Path | None = None,
+def campaign_section(summary_md: Path, lock: Path, record_json: Path | None = None,
                      cache: Path = Path(".dvc/cache")) -> str:
     """The campaign section: the headline counts of discovery over hidden worlds and the families'
-    table, from the campaign's summary, stamped with the hash its lock records for the folder; the
-    summary must be the one that folder holds where DVC's cache lists it."""
-    summary_json = Path(summary_json)
-    out = summary_json.parent.as_posix()
+    table, copied from the campaign's report (``reports/campaign/summary.md``), stamped with the
+    hash its lock records for the folder; the report must be the one that folder holds where DVC's
+    cache lists it."""
+    summary_md = Path(summary_md)
+    out = summary_md.parent.as_posix()
     dir_md5 = recorded_dir(lock, out)
-    md5 = file_md5(summary_json)
-    listed = _listed_md5(Path(cache), dir_md5, summary_json.name)
+    md5 = file_md5(summary_md)
+    listed = _listed_md5(Path(cache), dir_md5, summary_md.name)
     if listed is not None and listed != md5:
-        raise ValueError(f"{summary_json} is not the one {lock} records (run `make campaign`)")
-    s = json.loads(summary_json.read_text())
+        raise ValueError(f"{summary_md} is not the one {lock} records (run `make campaign`)")
+    text = summary_md.read_text().splitlines()
+    first = next((i for i, line in enumerate(text) if line.startswith("- ")), len(text))
+    bullets = list(itertools.takewhile(lambda line: line.startswith("- "), text[first:]))
+    head = "## A function of the state"
+    start = next((i for i, line in enumerate(text) if line.startswith(head)), len(text))
+    table = list(itertools.takewhile(lambda line: line.startswith("|"),
+                                     itertools.dropwhile(lambda line: not line.startswith("|"), text[start:])))
     lines = [CAMPAIGN_BEGIN, f"<!-- sources: {out} md5 {dir_md5} ({Path(lock).as_posix()}), "
-                             f"{summary_json.as_posix()} md5 {md5} -->", ""]
+                             f"{summary_md.as_posix()} md5 {md5} -->", ""]
     if record_json is not None and Path(record_json).exists():
         rec = json.loads(Path(record_json).read_text())
         lines += [f"`make campaign` ({Path(record_json).as_posix()}) took {rec['total_s']:g} s on "
                   f"{_machine(rec['machine'])}.", ""]
-    lines += [f"- {s['worlds']} drawn worlds, {s['failed']} failed;",
-              f"- named verdicts: {s['named']}, right in {_pct(s['precision'])};",
-              f"- clean worlds: {s['clean_worlds']}, without any finding in {_pct(s['clean_without_finding'])};",
-              f"- worlds with an effect outside the library: {s['out_of_library_worlds']}, without a false name in "
-              f"{_pct(s['out_of_library_without_false_name'])};",
-              f"- named coefficients checked against the world's truth: {s['coefficients_checked']}, their 95 % "
-              f"interval covering it in {_pct(s['coefficients_covered'])};",
-              f"- worlds with an effect of the state: {s['state_worlds']}, at least half of the physics → oracle gap "
-              f"closed in {_pct(s['half_gap_closed'])} (median {_pct(s['gap_closed_median'])}).", ""]
-    fam = s.get("families") or {}
-    if fam:
-        lines += ["| family | worlds | `slow_actuation` named | a finding \"not a function of the state\" | "
-                  "… called a function of time |", "|---|---|---|---|---|"]
-        lines += [f"| {name} | {d['worlds']} | {d['slow_actuation_named']} | {d['stateless']} | {d['of_time']} |"
-                  for name, d in fam.items()]
-        lines.append("")
-    lines += [f"The full summary, with recall by strength and identification over the worlds, is "
-              f"`{(summary_json.parent / 'summary.md').as_posix()}`.", "", CAMPAIGN_END]
+    intro = next((line for line in text if line.strip() and not line.startswith("#")), "")
+    lines += ([intro, ""] if intro and not intro.startswith("- ") else []) + [*bullets, ""] + ([*table, ""] if table else [])
+    lines += [f"The full report, with recall by strength and identification over the worlds, is "
+              f"`{summary_md.as_posix()}`.", "", CAMPAIGN_END]
     return "\n".join(lines)
 
 
-def update_campaign(readme: Path, summary_json: Path, lock: Path, record_json: Path | None = None) -> bool:
+def update_campaign(readme: Path, summary_md: Path, lock: Path, record_json: Path | None = None) -> bool:
     """Rewrite the campaign section of ``readme``; True when it changed."""
-    return _replace(readme, CAMPAIGN_BEGIN, CAMPAIGN_END, campaign_section(summary_json, lock, record_json))
+    return _replace(readme, CAMPAIGN_BEGIN, CAMPAIGN_END, campaign_section(summary_md, lock, record_json))
 
 
 def update_bench(readme: Path, bench_json: Path, repro_json: Path | None = None) -> bool:
@@ -374,7 +364,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--rig-report", type=Path, default=Path("reports/rig/paper.md"))
     p.add_argument("--rig-figure", type=Path, default=Path("reports/rig/figures/mae_horizon.png"))
     p.add_argument("--rig-copy", type=Path, default=Path("docs/figures/mae_horizon_rig.png"))
-    p.add_argument("--campaign", type=Path, default=Path("reports/campaign/summary.json"))
+    p.add_argument("--campaign", type=Path, default=Path("reports/campaign/summary.md"))
     p.add_argument("--campaign-lock", type=Path, default=Path("campaign/dvc.lock"))
     p.add_argument("--campaign-repro", type=Path, default=Path("reports/campaign-repro.json"))
     p.add_argument("--sections", nargs="+",
