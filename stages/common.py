@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import errno
 import logging
+import os
 import signal
 import sys
 from pathlib import Path
@@ -74,10 +75,20 @@ def run_stage(
         print(f"error: {os_fault(e)}", file=sys.stderr)
         return 2
     except Stopped as e:
-        print(f"error: {stage} stopped by {e.name}; its outputs were not written (the last run's, if any, are as "
-              "they were)", file=sys.stderr)
+        print(f"error: {stage} stopped by {e.name}; its outputs were not written ({_before_the_run()})",
+              file=sys.stderr)
         return 128 + e.signum
     return 0
+
+
+def _before_the_run() -> str:
+    """Where a stopped run leaves the last run's outputs: as they were, except under DVC, which
+    removes a stage's outputs before running it (``DVC_STAGE`` is set for the command)."""
+    under = os.environ.get("DVC_STAGE")
+    if under:
+        return (f"DVC removed the last run's before starting it: `dvc checkout {under}` brings them back from DVC's "
+                "cache, `dvc repro` reruns the stage")
+    return "the last run's, if any, are as they were"
 
 
 class Stopped(BaseException):

@@ -8,7 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from bagtools import CFG, IMU, MOCAP, TOPICS, nth_message, record, rewrite, shift_stamp
+from bagtools import CFG, IMU, MOCAP, TOPICS, nth_message, record, rewrite, shift_stamp, stamp_of
 from rosbags.highlevel import AnyReader
 
 from nanosysid import so3
@@ -151,6 +151,48 @@ def test_receive_clock_jumping_back_is_named_as_such(bag, tmp_path):
     with pytest.raises(DataError, match=rf"recv: topic {IMU} \(imu\), message \d+: the receive time goes backwards "
                                         r"by 0\.(29|30)\d s against the source time stamps"):
         extract_bag(dst, TOPICS)
+
+
+def imu_count(bag):
+    with AnyReader([bag], default_typestore=typestore()) as r:
+        return sum(1 for c, _, _ in r.messages() if c.topic == IMU)
+
+
+@pytest.mark.parametrize("where", ["middle", "end"])
+def test_single_stamps_out_of_place_are_refused(bag, tmp_path, where):
+    """One message stamped 0.305 s early in the middle, or the last three at the end of the
+    stream, where no block of later messages shows a jump: each lands, once sorted, on a
+    10 ms lattice slot another message holds."""
+    last = imu_count(bag)
+    moved = {400} if where == "middle" else {last - 2, last - 1, last}
+    count = {"n": 0}
+
+    def early(topic, m, t):
+        if topic == IMU:
+            count["n"] += 1
+            if count["n"] in moved:
+                return shift_stamp(m, -0.305), t
+        return m, t
+
+    first = min(moved) - 1  # the extract counts messages from 0, in receive order
+    with pytest.raises(DataError, match=rf"topic {IMU} \(imu\), message {first}: its source time stamp lies "
+                                        r"0\.(29|30|31)\d s before those of the messages received around it, among stamps "
+                                        r"10 ms apart that leave it no slot"):
+        extract_bag(rewrite(bag, tmp_path / where, early), TOPICS)
+
+
+@pytest.mark.parametrize("scale, words", [
+    (0.0, r"every source time stamp is 0\.000 s, over \d+ messages received in \d+\.\d+ s: the source does not "
+          "stamp its messages"),
+    (1000.0, r"the source time stamps span \d+\.?\d* s while the messages arrived over \d+\.\d+ s \((99\d|1e\+03) times "
+             r"as long\): the stamps look like milliseconds read as seconds"),
+])
+def test_stamps_that_do_not_run_at_the_hosts_pace_are_named(bag, tmp_path, scale, words):
+    def stamps(topic, m, t):
+        return (shift_stamp(m, stamp_of(m) * (scale - 1.0)), t) if topic == IMU else (m, t)
+
+    with pytest.raises(DataError, match=rf"topic {IMU} \(imu\): " + words):
+        extract_bag(rewrite(bag, tmp_path / "stamps", stamps), TOPICS)
 
 
 def test_late_delivery_and_small_clock_steps_pass(bag, tmp_path):

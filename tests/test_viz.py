@@ -119,3 +119,31 @@ def test_a_stream_cut_short_is_one_error_naming_the_argument(tmp_path, cut):
     part = data[: len(data) // 2] if cut == "half" else data[:20]
     with pytest.raises(DataError, match=r"rrd.canonical: data is not a whole RRD stream, cut short or damaged"):
         rrd.canonical(part, "flight")
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 64 KiB file system of its own (tmpfs; root only), unmounted after the test."""
+    mnt = tmp_path / "mnt"
+    mnt.mkdir()
+    if subprocess.run(["mount", "-t", "tmpfs", "-o", "size=64k", "tmpfs", str(mnt)], capture_output=True).returncode:
+        pytest.skip("a tmpfs cannot be mounted here (not root)")
+    yield mnt
+    subprocess.run(["umount", str(mnt)], check=True)
+
+
+def test_a_recording_on_a_full_disk_is_the_disk_full_error_and_leaves_nothing(flight, rollouts, small_disk,
+                                                                               monkeypatch):
+    """The SDK's file writer stops on a full disk with a log line and leaves a flush waiting;
+    the writer gives up after the flush timeout and names the disk as full."""
+    import errno
+
+    from nanosysid.viz import rerun as viz_rerun
+
+    monkeypatch.setattr(viz_rerun, "FLUSH_TIMEOUT", 2.0)
+    (small_disk / "filler").write_bytes(bytes(60 * 1024))
+    path = small_disk / f"{flight.name}.rrd"
+    with pytest.raises(OSError) as e:
+        write_recording(flight, {n: kept_of(r, 20) for n, r in rollouts.items()}, path)
+    assert e.value.errno == errno.ENOSPC and str(path) in str(e.value)
+    assert sorted(p.name for p in small_disk.iterdir()) == ["filler"]

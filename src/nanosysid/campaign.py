@@ -31,7 +31,7 @@ import torch
 from nanosysid import discover, identify, protocol, sim, so3
 from nanosysid.preprocess.sync import LagEvidence, SyncConfig, motor_lag_estimate, motor_lag_evidence
 from nanosysid.effects import LIBRARY
-from nanosysid.errors import ConfigError, PredictionError
+from nanosysid.errors import ConfigError, PredictionError, UserError
 from nanosysid.launcher import Launcher, even_parts, map_tasks
 from nanosysid.sim import EFFECTS, SimConfig
 from nanosysid.sim import world as nature
@@ -292,7 +292,11 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
     setup = setup or Setup()
     train = [f for f in flights if f.trajectory in setup.train]
     test = [f for f in flights if f.trajectory == setup.test]
-    ident, nominal = _identified(world, flights, setup)
+    try:
+        ident, nominal = _identified(world, flights, setup)
+    except UserError as e:  # what the identify stage would refuse, named with the world that made it
+        world_text = ", ".join(f"{k} {v:g}" for k, v in sorted(world.effects.items())) or "no effect"
+        raise type(e)(f"world {world.index} ({world_text}): its flights cannot be identified: {e}") from None
     extra = world.extra_wrench(setup.vehicle)
     oracle = sim.oracle(world.effects, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra,
                         compile=setup.sim.compile)

@@ -17,7 +17,6 @@ import logging
 import os
 import re
 import shutil
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Iterator, Mapping, Sequence
@@ -576,7 +575,7 @@ def atomic_file(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike] 
             yield tmp
             os.chmod(tmp, 0o666 & ~_umask())
             c.done(tmp)
-            os.replace(tmp, path)
+            c.swap(tmp)
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)
@@ -602,17 +601,7 @@ def atomic_dir(path: str | os.PathLike, *, inputs: Sequence[str | os.PathLike] =
             (tmp / OWNER).write_text(c.mark(tmp))
             os.chmod(tmp, 0o777 & ~_umask())
             c.done(tmp)
-            if path.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".{path.name}.{guard.TMP}", suffix=".old", dir=path.parent))
-                try:
-                    os.replace(path, old / "x")
-                except OSError:
-                    old.rmdir()  # the output could not be moved aside (immutable, say): it stays as it was
-                    raise
-                os.replace(tmp, path)
-                shutil.rmtree(old)
-            else:
-                os.replace(tmp, path)
+            c.swap(tmp)
         finally:
             c.forget(tmp)
             if tmp.exists():

@@ -30,7 +30,7 @@ import re
 import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import yaml
 
@@ -52,6 +52,9 @@ class _Run:
     outputs: tuple[Path, ...] = ()
     others: dict[Path, str] = field(default_factory=dict)  # other stages' outputs -> their stage
     locked: dict[str, str] = field(default_factory=dict)  # dvc.lock: output path -> md5 (this stage's)
+    # the outputs written so far, as what puts each back as it was; a failed run undoes them
+    undo: list[Callable[[], None]] = field(default_factory=list)
+    aside: list[Path] = field(default_factory=list)  # the versions replaced, removed when the run ends well
 
 
 _SCRATCH: list[Path] = []  # the temporary folders being written (what is written inside is theirs)
@@ -237,6 +240,15 @@ def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Ite
     token = _run.set(run)
     try:
         yield
+    except BaseException:
+        # a stage writes all of its outputs or none: the ones written before the failure go back
+        for step in reversed(run.undo):
+            with contextlib.suppress(OSError):
+                step()
+        raise
+    else:
+        for old in run.aside:
+            shutil.rmtree(old, ignore_errors=True) if old.is_dir() else old.unlink(missing_ok=True)
     finally:
         _run.reset(token)
 
@@ -279,6 +291,8 @@ class Claim:
     stage: str
     fd: int | None = None
     scratch: bool = False  # inside a folder being written: the folder's guard covers it
+    before: str | None = None  # the record's text before this write (None: there was none)
+    made: tuple[Path, ...] = ()  # the parent folders this write created, deepest first
 
     def temporary(self) -> Path:
         """A new temporary beside the output (ours by name, so a later run may remove it)."""
@@ -314,10 +328,67 @@ class Claim:
         return _MARK_HEAD + json.dumps({"stage": self.stage, "path": self.path.name, "files": files},
                                        sort_keys=True) + "\n"
 
+    def swap(self, tmp: Path) -> None:
+        """Put the written ``tmp`` in the output's place. Inside a stage run the version it
+        replaces is kept aside (a rename: no space needed) until the run ends, so that a run
+        failing at a later output puts this one back as it was, its record too."""
+        import tempfile
+
+        run = _run.get()
+        if self.scratch or run is None:
+            if self.kind == "folder" and self.path.exists():
+                old = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.{TMP}", suffix=".old", dir=self.path.parent))
+                try:
+                    os.replace(self.path, old / "x")
+                except OSError:
+                    old.rmdir()  # the output could not be moved aside (immutable, say): it stays as it was
+                    raise
+                os.replace(tmp, self.path)
+                shutil.rmtree(old)
+            else:
+                os.replace(tmp, self.path)
+            return
+        old = None
+        if os.path.lexists(self.path):
+            old = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.{TMP}", suffix=".old", dir=self.path.parent))
+            try:
+                os.replace(self.path, old / "x")
+            except OSError:
+                old.rmdir()
+                raise
+            run.aside.append(old)
+        os.replace(tmp, self.path)
+        rec, before, made = record_path(self.path), self.before, self.made
+
+        def back() -> None:
+            if self.path.is_dir() and not self.path.is_symlink():
+                shutil.rmtree(self.path)
+            else:
+                self.path.unlink(missing_ok=True)
+            if old is not None:
+                os.replace(old / "x", self.path)
+                old.rmdir()
+            if before is None:
+                rec.unlink(missing_ok=True)
+            else:
+                rec.write_text(before)
+            for folder in made:
+                with contextlib.suppress(OSError):
+                    folder.rmdir()  # only where it is empty again
+
+        run.undo.append(back)
+
     def forget(self, tmp: Path) -> None:
         """The temporary folder is swapped in or removed: what is written there now is checked."""
         if _resolve(tmp) in _SCRATCH:
             _SCRATCH.remove(_resolve(tmp))
+
+
+def _read_text(path: Path) -> str | None:
+    try:
+        return path.read_text()
+    except (OSError, UnicodeDecodeError):
+        return None
 
 
 def _read_record(rec: Path) -> dict[str, Any] | None:
@@ -433,12 +504,14 @@ def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathL
     if run is not None:
         _check_inputs(path, run.inputs, "the stage's input")
         _check_others(path, run.others)
+    made = tuple(p for p in [path.parent, *path.parent.parents] if not os.path.lexists(p))
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except (FileExistsError, NotADirectoryError):
         raise ConfigError(f"{path}: a parent of the output is a file; choose another path") from None
     rec_path = record_path(path)
     created = not os.path.lexists(rec_path)
+    before = None if created else _read_text(rec_path)
     fd = os.open(rec_path, os.O_RDWR | os.O_CREAT, 0o666)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -448,7 +521,7 @@ def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathL
             raise
         holder = (_read_record(rec_path) or {}).get("writing", "another run")
         raise ConfigError(f"{path}: being written by {holder}; wait for it to finish, or choose another output") from None
-    c = Claim(path, kind, stage, fd)
+    c = Claim(path, kind, stage, fd, before=before, made=made)
     rec = _read_record(rec_path)
     try:
         if path.exists() and not replace:
@@ -458,8 +531,9 @@ def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathL
         kept = {k: v for k, v in (rec or {}).items() if k != "writing"}
         os.pwrite(fd, (json.dumps({**kept, "writing": f"stage {stage} (process {os.getpid()})"}, sort_keys=True)
                        + "\n").encode(), 0)
+        aside = {_resolve(a) for a in run.aside} if run is not None else set()
         for leftover in path.parent.glob(f".{glob.escape(path.name)}.{TMP}*"):
-            if leftover.name.endswith((".tmp", ".old")):
+            if leftover.name.endswith((".tmp", ".old")) and _resolve(leftover) not in aside:
                 shutil.rmtree(leftover) if leftover.is_dir() else leftover.unlink()
         yield c
     except BaseException as e:
@@ -477,3 +551,7 @@ def claim(path: str | os.PathLike, kind: str, *, inputs: Sequence[str | os.PathL
         c.fd = None
         if created and not _read_record(rec_path):
             rec_path.unlink(missing_ok=True)  # a refused or failed first write leaves no record
+            if not os.path.lexists(path):
+                for folder in made:  # nor the folders made for it
+                    with contextlib.suppress(OSError):
+                        folder.rmdir()

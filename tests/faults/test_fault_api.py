@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from nanosysid import identify, predictors, protocol
-from nanosysid.errors import ConfigError, DataError
+from nanosysid.errors import ConfigError, DataError, PredictionError
 from nanosysid.synthetic import synthetic_flights
 from nanosysid.vehicle import Vehicle
 
@@ -262,3 +262,25 @@ def test_the_campaigns_api_and_the_oracle_refuse_a_strength_no_world_has():
         campaign.simulate([campaign.HiddenWorld(0, {"rotor_drag": -3.0})], campaign.Setup())
     with pytest.raises(ConfigError, match=r"effects: 'rotor_drag' = nan"):
         predictors.predictor("oracle", effects={"rotor_drag": math.nan})
+
+
+def test_an_oracle_whose_world_leaves_the_numbers_names_the_world(api_flights):
+    with pytest.raises(PredictionError, match=r"the oracle's world \(body_drag 2, rotor_drag 1e\+09\) predicts values "
+                                              r"that are not numbers from window \d+, step \d+"):
+        protocol.evaluate(predictors.predictor("oracle", effects={"rotor_drag": 1e9, "body_drag": 2.0}, compile=False),
+                          [api_flights[2]], horizon=10)
+
+
+def test_a_campaign_world_whose_flights_cannot_be_identified_is_named(api_flights, monkeypatch):
+    """Turbulence 50 times the default's wrecks the flights; the identified k_M comes out
+    negative, and the refusal names the world that did it, not only the vehicle."""
+    from nanosysid import campaign
+    from nanosysid.vehicle import Vehicle
+
+    def wrecked(world, flights, setup=None):
+        Vehicle(k_m=-1.39e-10)  # what the identification of the wrecked flights gives
+
+    monkeypatch.setattr(campaign, "_identified", wrecked)
+    with pytest.raises(ConfigError, match=r"^world 0 \(turbulence 50\): its flights cannot be identified: .*k_m must be "
+                                          r"a positive number, got -1\.39e-10"):
+        campaign.judge(campaign.HiddenWorld(0, {"turbulence": 50.0}), api_flights)

@@ -8,6 +8,7 @@ import copy
 import dataclasses
 import re
 import shutil
+import zlib
 
 import numpy as np
 import pytest
@@ -62,6 +63,35 @@ def test_a_bag_file_gone_from_its_folder_is_named(bag, tmp_path):
     shutil.copytree(bag, dst)
     next(dst.glob("*.mcap")).unlink()
     with pytest.raises(DataError, match=r"\.mcap: the bag's file is missing"):
+        extract_bag(dst, TOPICS)
+
+
+def test_a_flipped_bit_is_refused_by_the_chunk_crcs_when_the_metadata_lost_its_crc(bag, tmp_path):
+    """A bag whose metadata no longer records the file's CRC still carries a CRC-32 of each
+    chunk's records, computed here with zlib over the zstd-decompressed records."""
+    dst = tmp_path / bag.name
+    shutil.copytree(bag, dst)
+    meta = dst / "metadata.yaml"
+    meta.write_text(re.sub(r"\n\s*nanosysid\.crc32\.\S+: '?[0-9a-f]{8}'?", "", meta.read_text()))
+    mcap = next(dst.glob("*.mcap"))
+    data = bytearray(mcap.read_bytes())
+    # the first chunk record (opcode 0x06) after the 8-byte magic and the header record
+    at = data.index(b"\x06", 8)
+    while int.from_bytes(data[at + 1:at + 9], "little") > len(data):
+        at = data.index(b"\x06", at + 1)
+    body = at + 9
+    n_name = int.from_bytes(data[body + 28:body + 32], "little")
+    start = body + 32 + n_name + 8
+    records = bytes(data[start:start + int.from_bytes(data[start - 8:start], "little")])
+    try:
+        from compression import zstd
+    except ImportError:
+        from backports import zstd
+    assert int.from_bytes(data[body + 24:body + 28], "little") == zlib.crc32(zstd.decompress(records))
+    extract_bag(dst, TOPICS)  # without the metadata's CRC, an intact bag still passes
+    data[len(data) // 3] ^= 0x04
+    mcap.write_bytes(bytes(data))
+    with pytest.raises(DataError, match=r"the bag is damaged or truncated"):
         extract_bag(dst, TOPICS)
 
 

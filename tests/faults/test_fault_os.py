@@ -51,8 +51,8 @@ def test_a_fault_while_writing_is_one_line_and_leaves_nothing(tmp_path, monkeypa
     assert run_stage(main, description="", argv=["--params", str(params)]) == 2
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and err.startswith(f"error: {out}: {text}") and hint in err, err
-    left = [p.name for p in out.parent.iterdir()]
-    assert left == [], left  # no temporary, no output, no record of a write that never happened
+    # no temporary, no output, no record of a write that never happened, nor the folder made for it
+    assert not out.parent.exists(), list(out.parent.iterdir())
 
 
 @pytest.mark.parametrize("name", ["with space", "non-ascii-é", "quote's"])
@@ -88,7 +88,52 @@ def test_a_full_disk_names_the_output_being_written(tmp_path, capsys, params, ra
     err = capsys.readouterr().err.strip()
     assert err == f"error: {out}: No space left on device; the disk is full: free space or choose an output on " \
                   "another disk", err
-    assert [p.name for p in out.parent.iterdir()] == []
+    assert not out.parent.exists()
+
+
+@pytest.mark.parametrize("before", [False, True], ids=["first run", "a run before"])
+def test_a_stage_failing_at_a_later_output_leaves_its_earlier_ones_as_they_were(tmp_path, capsys, params, before):
+    """A stage writes its outputs one after another; one refused by a full disk takes back the
+    ones written before it in the same run: a report is never left with some of its figures."""
+    out = tmp_path / "report"
+    table, figures = out / "table.md", out / "figures"
+
+    def writes(fail):
+        def main(cfg):
+            with dataio.atomic_file(table) as tmp:
+                tmp.write_text("new" if fail else "old")
+            with dataio.atomic_dir(figures) as tmp:
+                (tmp / "a.png").write_text("new" if fail else "old")
+                if fail:
+                    raise OSError(errno.ENOSPC, "No space left on device")
+        main.__module__ = "stages.faulty"
+        return main
+
+    if before:
+        assert run_stage(writes(False), description="", argv=["--params", str(params)]) == 0
+        listing = sorted(p.name for p in out.iterdir())
+        record = (out / ".table.md.nanosysid").read_text()
+    assert run_stage(writes(True), description="", argv=["--params", str(params)]) == 2
+    assert capsys.readouterr().err.strip().startswith(f"error: {figures}: No space left on device")
+    if before:
+        assert sorted(p.name for p in out.iterdir()) == listing
+        assert table.read_text() == "old" and (figures / "a.png").read_text() == "old"
+        assert (out / ".table.md.nanosysid").read_text() == record
+    else:
+        assert not out.exists(), list(out.iterdir())
+
+
+def test_a_stage_that_succeeds_keeps_no_earlier_version(tmp_path, params):
+    out = tmp_path / "scores.json"
+
+    def main(cfg):
+        with dataio.atomic_file(out) as tmp:
+            tmp.write_text("{}")
+
+    main.__module__ = "stages.faulty"
+    for _ in range(2):
+        assert run_stage(main, description="", argv=["--params", str(params)]) == 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".scores.json.nanosysid", "scores.json"]
 
 
 def test_an_output_that_cannot_be_moved_aside_is_left_as_it_was_with_nothing_beside_it(tmp_path, monkeypatch):

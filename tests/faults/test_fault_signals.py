@@ -95,3 +95,22 @@ def test_a_stage_stopped_by_a_signal_exits_non_zero_and_writes_nothing(tmp_path,
         assert not out.exists()
     assert sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith(".")) == sorted(
         ["stage.py", "ready"] + ([out.name] if mode == "file" else [])), list(tmp_path.iterdir())
+
+
+def test_a_stage_stopped_under_dvc_says_that_dvc_removed_the_last_runs_outputs(tmp_path, params):
+    """DVC removes a stage's outputs before running it: "as they were" would be false there."""
+    script = tmp_path / "stage.py"
+    script.write_text(SCRIPT)
+    out, ready = tmp_path / "scores.json", tmp_path / "ready"
+    env = dict(os.environ, PYTHONPATH=f"{ROOT}{os.pathsep}{ROOT / 'src'}", DVC_STAGE="train@residual")
+    p = subprocess.Popen([sys.executable, str(script), "file", str(out), str(ready), str(params)], cwd=tmp_path,
+                         env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not ready.exists() and p.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 128 + signal.SIGTERM
+    assert err.strip().splitlines()[-1].endswith(
+        "its outputs were not written (DVC removed the last run's before starting it: `dvc checkout train@residual` "
+        "brings them back from DVC's cache, `dvc repro` reruns the stage)"), err

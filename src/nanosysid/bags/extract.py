@@ -19,6 +19,7 @@ import yaml
 from rosbags.highlevel import AnyReader
 from tqdm.auto import tqdm
 
+from nanosysid.bags.mcap import check_indexes
 from nanosysid.bags.messages import typestore
 from nanosysid.dataio import atomic_dir, check_finite
 from nanosysid.errors import ConfigError, DataError
@@ -182,8 +183,9 @@ def extract_bag(bag: Path, topics: Mapping[str, Mapping[str, Any]]) -> dict[str,
 
 def check_crc(bag: Path) -> None:
     """Compare each storage file of a bag with the CRC-32 its metadata records (bags written by
-    this project's recorder). A bag from elsewhere records none; its MCAP chunk CRCs, where the
-    writer set them, are checked by the reader.
+    this project's recorder). Where the metadata records none (a bag from elsewhere), an MCAP
+    file's message indexes are checked against its chunks; the chunks' CRCs, where the writer
+    set them (this project's recorder does), are checked by the reader.
 
     Raises:
         DataError: a file whose CRC differs, naming the file and both values.
@@ -193,9 +195,11 @@ def check_crc(bag: Path) -> None:
         custom = (meta.get("rosbag2_bagfile_information") or {}).get("custom_data") or {}
     except (OSError, UnicodeDecodeError, yaml.YAMLError, AttributeError) as e:
         raise DataError(f"{bag}/metadata.yaml: cannot read the bag's metadata ({type(e).__name__}: {e})") from None
+    checked = set()
     for key, recorded in sorted(custom.items()):
         if not str(key).startswith(CRC_KEY):
             continue
+        checked.add(str(key)[len(CRC_KEY):])
         path = Path(bag) / str(key)[len(CRC_KEY):]
         if not path.is_file():
             raise DataError(f"{path}: the bag's file is missing (its metadata records a CRC for it)")
@@ -203,6 +207,14 @@ def check_crc(bag: Path) -> None:
         if found != str(recorded):
             raise DataError(f"{path}: CRC-32 {found}, but the bag's metadata records {recorded} when it was "
                             "written: the file was damaged or changed since; record it again or restore a copy")
+    # without a file CRC, the chunks' own CRCs (checked by the reader) leave the message
+    # indexes, which the reader follows, unchecked
+    for path in sorted(Path(bag).glob("*.mcap")):
+        if path.name not in checked:
+            problem = check_indexes(path)
+            if problem:
+                raise DataError(f"{bag}: the bag is damaged or truncated ({path.name}: {problem}); record it again "
+                                "or restore a copy")
 
 
 def _motors(m, spec: Mapping[str, Any]) -> list[float]:
@@ -239,7 +251,9 @@ def _table(bag: Path, spec: Mapping[str, Any], stream: str, rows: list) -> pd.Da
     if spec.get("velocity_frame") == "body":
         v = rotate(df[["qx", "qy", "qz", "qw"]].to_numpy(), df[["vx", "vy", "vz"]].to_numpy())
         df[["vx", "vy", "vz"]] = v
+    _check_span(where, df["t_src"].to_numpy(), df["t_recv"].to_numpy())
     _check_clock(where, df["t_src"].to_numpy(), df["t_recv"].to_numpy())
+    _check_placement(where, df["t_src"].to_numpy(), df["t_recv"].to_numpy())
     df = df.sort_values("t_src", kind="stable").reset_index(drop=True)
     rep = np.flatnonzero(np.diff(df["t_src"].to_numpy()) == 0)
     if rep.size:
@@ -251,6 +265,67 @@ def _period(t_src: np.ndarray) -> float:
     d = np.diff(np.sort(t_src))
     d = d[d > 0]
     return float(np.median(d)) if d.size else 0.0
+
+
+# Source stamps that span this many times the receive times' span (or a fraction of it) are
+# in another unit or absent: clocks agree to parts per million, jumps are refused one by one.
+MAX_SPAN_RATIO = 10.0
+_UNITS = {1e3: "milliseconds", 1e6: "microseconds", 1e9: "nanoseconds",
+          1e-3: "thousands of seconds", 1e-6: "millions of seconds"}
+
+
+def _check_span(where: str, t_src: np.ndarray, t_recv: np.ndarray) -> None:
+    """Refuse source stamps that do not run at the host's pace: all equal, or in another unit."""
+    if len(t_src) < 2:
+        return
+    span_src, span_recv = float(np.ptp(t_src)), float(np.ptp(t_recv))
+    if span_src == 0.0:
+        raise DataError(f"{where}: every source time stamp is {t_src[0]:.3f} s, over {len(t_src)} messages received "
+                        f"in {span_recv:.3f} s: the source does not stamp its messages")
+    if span_recv <= 0.0:
+        return
+    ratio = span_src / span_recv
+    if 1.0 / MAX_SPAN_RATIO <= ratio <= MAX_SPAN_RATIO:
+        return
+    unit = min(_UNITS, key=lambda f: abs(math.log10(ratio / f)))
+    hint = (f": the stamps look like {_UNITS[unit]} read as seconds"
+            if abs(math.log10(ratio / unit)) < 0.3 else ": the source's clock does not run in seconds")
+    raise DataError(f"{where}: the source time stamps span {span_src:.6g} s while the messages arrived over "
+                    f"{span_recv:.3f} s ({ratio:.3g} times as long){hint}")
+
+
+def _check_placement(where: str, t_src: np.ndarray, t_recv: np.ndarray) -> None:
+    """Refuse single messages whose source stamp is out of place: a stamp more than two sample
+    periods off the latency of the messages received around it that also lands, once sorted,
+    within half a period of another stamp.
+
+    A message delivered late has the same latency excess, but its genuine stamp fills its own
+    slot of the source's tick lattice; a wrong stamp crowds a slot that is taken (and at the
+    end of a stream no block of later messages shows a jump).
+    """
+    n = len(t_src)
+    if n < 2 * CLOCK_BLOCK + 1:
+        return
+    period = _period(t_src)
+    d = t_recv - t_src
+    padded = np.pad(d, CLOCK_BLOCK, mode="reflect")
+    local = np.median(np.lib.stride_tricks.sliding_window_view(padded, 2 * CLOCK_BLOCK + 1), axis=1)
+    off = np.abs(d - local) > MAX_CLOCK_STEP * period
+    if not off.any():
+        return
+    order = np.argsort(t_src, kind="stable")
+    gap = np.diff(t_src[order])
+    crowded = np.zeros(n, bool)
+    crowded[order[1:]] |= gap < 0.5 * period
+    crowded[order[:-1]] |= gap < 0.5 * period
+    bad = off & crowded
+    if bad.any():
+        i = int(np.argmax(bad))
+        shift = local[i] - d[i]
+        raise DataError(f"{where}, message {i}: its source time stamp lies {abs(shift):.3f} s "
+                        f"{'after' if shift > 0 else 'before'} those of the messages received around it, among "
+                        f"stamps {period * 1e3:.3g} ms apart that leave it no slot: the stamp is out of place "
+                        "(the source's clock jumped for this message)")
 
 
 def _check_clock(where: str, t_src: np.ndarray, t_recv: np.ndarray) -> None:

@@ -35,6 +35,7 @@ from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, W
 from scipy.spatial.transform import Rotation, Slerp
 
 from nanosysid.bags.extract import CRC_KEY, rotate
+from nanosysid.bags.mcap import set_chunk_crcs
 from nanosysid.bags.messages import typestore
 from nanosysid.dataio import json_text
 from nanosysid.settings import configured
@@ -283,13 +284,14 @@ def _write_bag(bag_dir: Path, streams: Mapping[str, _Stream], store) -> None:
 
 
 def _seal(bag_dir: Path) -> None:
-    """Record the CRC-32 of each storage file in the bag's metadata (``custom_data``), which the
-    extract stage verifies: the MCAP writer leaves its own chunk CRCs at zero (unchecked)."""
+    """Set the chunk CRCs of each storage file and record each file's CRC-32 in the bag's
+    metadata (``custom_data``), which the extract stage verifies."""
     meta_path = bag_dir / "metadata.yaml"
     meta = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
     info = meta["rosbag2_bagfile_information"]
     custom = dict(info.get("custom_data") or {})
     for name in info["relative_file_paths"]:
+        set_chunk_crcs(bag_dir / name)
         custom[f"{CRC_KEY}{name}"] = f"{zlib.crc32((bag_dir / name).read_bytes()):08x}"
     info["custom_data"] = custom
     meta_path.write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")

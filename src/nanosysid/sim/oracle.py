@@ -94,14 +94,24 @@ class Oracle:
         om_dot = (om_next - om) / self.dt
         disturbance = self._disturbance(flight, t_end)
         if not (self.compile and len(y) >= BLOCK // 2):
-            return self._rollout(self._nature(disturbance), y, om, om_dot, t).numpy()
+            return self._finite(self._rollout(self._nature(disturbance), y, om, om_dot, t).numpy())
         # blocks of BLOCK windows compiled (a last one of half a block or more padded to a block),
         # a shorter last one eagerly: one compiled shape, its compile paid where the work is large
         complete = self._nature(disturbance, complete=True)
         t = torch.zeros(len(y), dtype=torch.float64) if t is None else t
-        return torch.cat([self._compiled_rollout(complete, *b) if len(b[0]) >= BLOCK // 2
-                          else self._rollout(self._nature(disturbance), *b)
-                          for b in zip(*(a.split(BLOCK) for a in (y, om, om_dot, t)))]).numpy()
+        return self._finite(torch.cat([self._compiled_rollout(complete, *b) if len(b[0]) >= BLOCK // 2
+                                       else self._rollout(self._nature(disturbance), *b)
+                                       for b in zip(*(a.split(BLOCK) for a in (y, om, om_dot, t)))]).numpy())
+
+    def _finite(self, pred: np.ndarray) -> np.ndarray:
+        """The rollouts, or an error naming the world whose true dynamics left the numbers."""
+        bad = ~np.isfinite(pred)
+        if bad.any():
+            i, h, _ = np.argwhere(bad)[0]
+            world = ", ".join(f"{k} {v:g}" for k, v in sorted(self.world.strengths.items()) if v) or "no effect"
+            raise PredictionError(f"the oracle's world ({world}) predicts values that are not numbers from window {i}, "
+                                  f"step {h + 1}: the vehicle cannot fly these strengths")
+        return pred
 
     def _rollout(self, nature: Nature, y, om, om_dot, t):
         """The eager rollout ``(B, H, 13)`` from ``y (B, 13)`` under true rotor speeds ``om`` and

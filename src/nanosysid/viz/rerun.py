@@ -18,10 +18,14 @@ Entities, for a flight of T samples, horizon H and S rollout starts:
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import itertools
+import os
+import shutil
 import uuid
 from pathlib import Path
-from typing import Mapping
+from typing import Iterator, Mapping
 
 import numpy as np
 
@@ -77,6 +81,23 @@ def _blueprint(models: list[str], notes: bool = False):
     return blueprint
 
 
+
+@contextlib.contextmanager
+def _disk_full_named(tmp: Path) -> Iterator[None]:
+    """The SDK's file writer, stopped by a full disk, says so only in its log and raises a
+    RuntimeError ("File-writer thread shut down prematurely"): read as the full disk it is."""
+    try:
+        yield
+    except RuntimeError:
+        if shutil.disk_usage(tmp.parent).free < _FULL:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp)) from None
+        raise
+
+
+_FULL = 1 << 20  # bytes free below which a failed write is the disk's
+# s; a file writer stopped by a full disk leaves a flush waiting for ever
+FLUSH_TIMEOUT = 120.0
+
 def write_recording(flight: Flight, rollouts: Mapping[str, Kept], path: Path, *,
                     verdicts: str | None = None) -> None:
     """Write ``path`` (``.rrd``) for one flight.
@@ -105,9 +126,9 @@ def write_recording(flight: Flight, rollouts: Mapping[str, Kept], path: Path, *,
         # flushed at once: the SDK's batcher thread would otherwise interleave these chunks with
         # the columns sent directly, in an order that varies from run to run
         rec.log(entity, archetype, static=True)
-        rec.flush()
+        rec.flush(timeout_sec=FLUSH_TIMEOUT)
 
-    with atomic_file(Path(path)) as tmp:
+    with atomic_file(Path(path)) as tmp, _disk_full_named(tmp):
         rec.save(tmp, default_blueprint=_blueprint(list(rollouts), notes=verdicts is not None))
         if verdicts is not None:
             static("discovery", rr.TextDocument(verdicts, media_type=rr.MediaType.MARKDOWN))
@@ -151,7 +172,7 @@ def write_recording(flight: Flight, rollouts: Mapping[str, Kept], path: Path, *,
                 static(f"errors/{k}/{name}", rr.SeriesLines(names=[name], colors=[color]))
                 rec.send_columns(f"errors/{k}/{name}", indexes=predicted,
                                  columns=rr.Scalars.columns(scalars=err[k][0]))
-        rec.flush()
+        rec.flush(timeout_sec=FLUSH_TIMEOUT)
         rec.disconnect()
         # the SDK's random ids and wall-clock times replaced: the same flight and models, the same bytes
         data = rrd.with_footer(rrd.canonical(tmp.read_bytes(), recording_id))
