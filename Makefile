@@ -117,7 +117,7 @@ campaign: params
 readme: $(STAMP)
 	@if [ -f reports/repro.last.json ]; then cp reports/repro.last.json reports/repro.json; fi
 	@if [ -f reports/campaign-repro.last.json ]; then cp reports/campaign-repro.last.json reports/campaign-repro.json; fi
-	$(BIN)/python -m nanosysid.report.readme --sections results rig physics bench campaign
+	$(BIN)/python -m nanosysid.report.readme --sections headline start results rig physics bench campaign
 
 # every benchmark's figures into reports/bench.json, and from there into the README;
 # `make bench NAMES="simulate_batch discover_speed"` reruns only those

@@ -1,10 +1,12 @@
-"""The README's generated results section: regenerated from the report, current with dvc.lock."""
+"""The generated sections of the README and its docs pages: regenerated from the reports, current
+with dvc.lock; the README short enough to read in ten minutes, its commands each run by a test."""
 
 import hashlib
 import json
 import re
 from pathlib import Path
 
+import docpages
 import yaml
 
 from nanosysid.report import readme
@@ -13,9 +15,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def stamped(begin, end, stages):
-    """A generated section of the README, the sources its stamp names, and the outputs of
-    ``stages`` as the committed ``dvc.lock`` records them."""
-    text = (ROOT / "README.md").read_text()
+    """A generated section (of the README or a docs page), the sources its stamp names, and the
+    outputs of ``stages`` as the committed ``dvc.lock`` records them."""
+    text = docpages.page_of(begin).read_text()
     assert text.count(begin) == 1 and text.count(end) == 1
     part = text[text.index(begin):text.index(end)]
     lock = yaml.safe_load((ROOT / "dvc.lock").read_text())
@@ -23,11 +25,50 @@ def stamped(begin, end, stages):
     return part, dict(re.findall(r"(\S+) md5 ([0-9a-f]{32})", part)), outs
 
 
+def figure_copy(begin: str, part: str) -> Path:
+    """The copy of a figure a generated section shows, from its link relative to the page."""
+    link = re.search(r"\]\(((?:docs/)?figures/[^)]+\.png)\)", part).group(1)
+    return docpages.page_of(begin).parent / link
+
+
+def test_the_generated_sections_are_on_the_pages_the_generator_writes():
+    for which, begin in (("results", readme.BEGIN), ("rig", readme.RIG_BEGIN), ("campaign", readme.CAMPAIGN_BEGIN),
+                         ("physics", readme.PHYSICS_BEGIN), ("world", readme.WORLD_BEGIN), ("bench", readme.BENCH_BEGIN),
+                         ("reliability", readme.FAULTS_BEGIN), ("headline", readme.HEADLINE_BEGIN),
+                         ("start", readme.START_BEGIN)):
+        assert docpages.page_of(begin) == ROOT / readme.PAGES[which], which
+
+
+def test_the_readme_reads_in_ten_minutes():
+    """At most 3,000 words (whitespace-separated, tables and code included); depth is in docs/."""
+    words = len((ROOT / "README.md").read_text().split())
+    assert words <= 3000, words
+
+
+def test_every_link_between_the_pages_lands_on_a_file():
+    for page in docpages.pages():
+        for target in re.findall(r"\]\(([^)#:]+)(?:#[^)]*)?\)", page.read_text()):
+            assert (page.parent / target).exists(), (page.name, target)
+
+
+def test_readme_headline_is_the_rig_comparison_the_lock_file_records(monkeypatch):
+    part, sources, outs = stamped(readme.HEADLINE_BEGIN, readme.HEADLINE_END, ["rig_compare"])
+    assert sources == {"reports/rig/paper.md": outs["reports/rig/paper.md"]}
+    assert "| phys_res |" in part and "| paper |" in part
+
+
+def test_readme_start_time_is_the_repro_record(monkeypatch):
+    monkeypatch.chdir(ROOT)
+    text = (ROOT / "README.md").read_text()
+    part = text[text.index(readme.START_BEGIN):text.index(readme.START_END) + len(readme.START_END)]
+    assert part == readme.start_section(Path("reports/repro.json"), Path("reports/campaign-repro.json"))
+
+
 def test_readme_shows_the_results_the_lock_file_records():
     part, sources, outs = stamped(readme.BEGIN, readme.END, ["report"])
     assert sources == {p: outs[p] for p in ("reports/benchmark.md", "reports/figures/mae_horizon.png")}
-    copy = re.search(r"\]\((docs/figures/[^)]+\.png)\)", part).group(1)
-    assert hashlib.md5((ROOT / copy).read_bytes()).hexdigest() == outs["reports/figures/mae_horizon.png"]
+    copy = figure_copy(readme.BEGIN, part)
+    assert hashlib.md5(copy.read_bytes()).hexdigest() == outs["reports/figures/mae_horizon.png"]
     assert "| phys_res |" in part and "| oracle (physical limit) |" in part
 
 
@@ -70,7 +111,7 @@ def test_update_replaces_only_the_section(tmp_path):
 
 
 def readme_table():
-    text = (ROOT / "README.md").read_text()
+    text = docpages.page_of(readme.BEGIN).read_text()
     part = text[text.index(readme.BEGIN):text.index(readme.END)]
     lines = [line for line in part.splitlines() if line.startswith("|")]
     head = [c.strip() for c in lines[0].strip("|").split("|")]
@@ -119,13 +160,15 @@ def test_readme_table_is_the_report_table_when_the_report_is_here():
 
 
 def test_readme_run_times_are_the_bench_record(monkeypatch):
-    """Every time the README states is in the run-times section, generated from the committed
-    records of `make bench` and `make repro`; no time is typed elsewhere in the prose."""
+    """Every time the README and its pages state is in the run-times sections, generated from the
+    committed records of `make bench` and `make repro`; no time is typed elsewhere in the prose."""
     monkeypatch.chdir(ROOT)
-    text = (ROOT / "README.md").read_text()
+    text = docpages.page_of(readme.BENCH_BEGIN).read_text()
     part = text[text.index(readme.BENCH_BEGIN):text.index(readme.BENCH_END) + len(readme.BENCH_END)]
     assert part == readme.bench_section(Path("reports/bench.json"), Path("reports/repro.json"))
-    rest = text.replace(part, "")
+    everything = docpages.text()
+    start = everything[everything.index(readme.START_BEGIN):everything.index(readme.START_END)]
+    rest = everything.replace(part, "").replace(start, "")
     assert not re.findall(r"about \d+(\.\d+)? ?(s|min|minutes|seconds)\b", rest)
 
 
@@ -134,7 +177,7 @@ def test_readme_reliability_section_is_the_fault_matrix_record(monkeypatch):
     from nanosysid.report.readme import FAULTS_BEGIN, FAULTS_END, faults_section
 
     monkeypatch.chdir(ROOT)
-    text = (ROOT / "README.md").read_text()
+    text = docpages.page_of(FAULTS_BEGIN).read_text()
     part = text[text.index(FAULTS_BEGIN):text.index(FAULTS_END) + len(FAULTS_END)]
     record = json.loads((ROOT / "tests" / "faults" / "record.json").read_text())
     assert part == faults_section(Path("tests/faults/record.json")), \
@@ -144,7 +187,7 @@ def test_readme_reliability_section_is_the_fault_matrix_record(monkeypatch):
 
 
 def test_readme_world_table_is_the_effects_records():
-    text = (ROOT / "README.md").read_text()
+    text = docpages.page_of(readme.WORLD_BEGIN).read_text()
     part = text[text.index(readme.WORLD_BEGIN):text.index(readme.WORLD_END) + len(readme.WORLD_END)]
     assert part == readme.world_section(), "run `python -m nanosysid.report.readme --sections world`"
 
@@ -165,8 +208,8 @@ def test_repro_times_each_stage_from_dvcs_own_lines():
 def test_readme_real_flights_section_is_the_rig_reports_the_lock_file_records():
     part, sources, outs = stamped(readme.RIG_BEGIN, readme.RIG_END, ["rig_compare", "rig_report"])
     assert sources == {p: outs[p] for p in ("reports/rig/paper.md", "reports/rig/figures/mae_horizon.png")}
-    copy = re.search(r"\]\((docs/figures/[^)]+\.png)\)", part).group(1)
-    assert hashlib.md5((ROOT / copy).read_bytes()).hexdigest() == outs["reports/rig/figures/mae_horizon.png"]
+    copy = figure_copy(readme.RIG_BEGIN, part)
+    assert hashlib.md5(copy.read_bytes()).hexdigest() == outs["reports/rig/figures/mae_horizon.png"]
     assert "| phys_res |" in part and "| paper |" in part and "| k_F [N s²/rad²] |" in part
 
 
@@ -192,14 +235,15 @@ def test_the_readmes_ablation_names_the_stages_dvc_reruns():
     from test_dvc import EXPERIMENTS
 
     change, reruns = EXPERIMENTS["substeps"]
-    line = next(x for x in (ROOT / "README.md").read_text().splitlines() if x.startswith(f"dvc exp run -S {change}"))
+    line = next(x for x in docpages.text().splitlines() if x.startswith(f"dvc exp run -S {change}"))
     claimed = line.split("reruns", 1)[1].strip().split(", ")
     assert claimed == list(reruns), (claimed, reruns)
 
 
 def readme_commands(prefix: str) -> list[str]:
-    """The README's shell command lines (in ```bash blocks) that start with ``prefix``, comments cut."""
-    text = (ROOT / "README.md").read_text()
+    """The shell command lines (in ```bash blocks) of the README and its pages that start with
+    ``prefix``, comments cut."""
+    text = docpages.text()
     lines = [line for block in re.findall(r"```bash\n(.*?)```", text, flags=re.S) for line in block.splitlines()]
     return [line.split("  #")[0].strip() for line in lines if line.startswith(prefix)]
 
@@ -213,7 +257,7 @@ def test_the_readmes_minio_remote_commands_configure_dvc(tmp_path):
     add, = readme_commands("dvc remote add")
     modify, = readme_commands("dvc remote modify")
     # endpointurl is an S3 option: the remote is the comment's s3:// alternative
-    s3 = re.search(r"or: (s3://\S+)", next(x for x in (ROOT / "README.md").read_text().splitlines()
+    s3 = re.search(r"or: (s3://\S+)", next(x for x in docpages.text().splitlines()
                                            if x.startswith("dvc remote add"))).group(1)
     env = dvc_env()
     for cmd in (["git", "init", "-q"], ["dvc", "init", "-q"], shlex.split(add)[:-1] + [s3], shlex.split(modify)):
@@ -278,7 +322,7 @@ def test_the_readmes_bench_command_names_benchmarks_that_exist():
     import subprocess
     import sys
 
-    names = re.findall(r'NAMES="?([a-z_ ]+)"?', (ROOT / "README.md").read_text())
+    names = re.findall(r'NAMES="?([a-z_ ]+)"?', docpages.text())
     assert names
     bench = importlib.util.spec_from_file_location("bench_run", ROOT / "benchmarks" / "run.py")
     module = importlib.util.module_from_spec(bench)
@@ -321,7 +365,7 @@ RUN_BY = {
 
 
 def test_every_readme_command_has_a_test_that_runs_it():
-    text = (ROOT / "README.md").read_text()
+    text = docpages.text(readme_only=True)
     lines = [line.split("  #")[0].strip() for block in re.findall(r"```bash\n(.*?)```", text, flags=re.S)
              for line in block.splitlines() if line.strip() and not line.startswith("#")]
     unrun = [line for line in lines if not any(line.startswith(k) for k in RUN_BY)]
@@ -363,7 +407,7 @@ def test_the_hypotheses_lines_are_the_reports_verdicts_checks_and_worlds_table(t
 
 def test_readme_campaign_section_is_the_summary_the_campaigns_lock_records(monkeypatch):
     monkeypatch.chdir(ROOT)  # the lock names its outputs relative to the project's root
-    text = (ROOT / "README.md").read_text()
+    text = docpages.page_of(readme.CAMPAIGN_BEGIN).read_text()
     part = text[text.index(readme.CAMPAIGN_BEGIN):text.index(readme.CAMPAIGN_END) + len(readme.CAMPAIGN_END)]
     sources = dict(re.findall(r"(\S+) md5 ([0-9a-f]{32}(?:\.dir)?)", part))
     lock = yaml.safe_load((ROOT / "campaign" / "dvc.lock").read_text())
