@@ -180,7 +180,7 @@ def test_a_rig_whose_loop_fights_strong_thrust_disturbances_gets_its_lag_from_th
     # the disturbances: as instruments they put the lag within 3 ms of the world's, inside the
     # interval.
     from nanosysid import campaign
-    from nanosysid.preprocess.sync import motor_lag_estimate, motor_lag_evidence
+    from nanosysid.preprocess.lag import motor_lag_estimate, motor_lag_evidence
 
     (_, world), setup, (_, flights) = campaign_flights
     cfg = setup.sync

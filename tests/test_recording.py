@@ -18,7 +18,8 @@ from nanosysid.bags.messages import typestore
 from nanosysid.bags.recorder import RecorderConfig, record_flight
 from nanosysid.sim import FlightSpec
 from nanosysid.sim.simulator import flights_from_record, simulate_raw
-from nanosysid.preprocess.sync import SyncConfig, motor_lag_estimate, motor_lag_evidence, sync_flight
+from nanosysid.preprocess.lag import motor_lag_estimate, motor_lag_evidence
+from nanosysid.preprocess.sync import SyncConfig, sync_flight
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 from nanosysid.bags.extract import extract_folder
@@ -460,7 +461,7 @@ def test_the_setpoints_as_instruments_find_a_lag_the_loops_answers_pull_early():
     # The disturbance is in a_z at once and in the rotors 30 ms later (negative): the plain
     # correlation of a_z with the recorded rotors peaks early. The reference's thrust steps do not
     # answer the disturbance, so their moments give the telemetry's 40 ms, and its interval holds it.
-    from nanosysid.preprocess.sync import LagEvidence, xcorr_lag
+    from nanosysid.preprocess.lag import LagEvidence, xcorr_lag
 
     cfg = SyncConfig()
     t, ask, acc, recorded, velocity = _closed_loop_signals(0.040)

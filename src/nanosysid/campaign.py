@@ -29,7 +29,8 @@ import pandas as pd
 import torch
 
 from nanosysid import discover, identify, protocol, sim, so3
-from nanosysid.preprocess.sync import LagEvidence, SyncConfig, motor_lag_estimate, motor_lag_evidence
+from nanosysid.preprocess.lag import LagEvidence, motor_lag_estimate, motor_lag_evidence
+from nanosysid.preprocess.sync import SyncConfig
 from nanosysid.effects import LIBRARY
 from nanosysid.errors import ConfigError, PredictionError, UserError
 from nanosysid.launcher import Launcher, even_parts, map_tasks
