@@ -250,3 +250,17 @@ def test_bad_checkpoints_are_one_clear_error(tmp_path):
     with pytest.raises(ConfigError, match=r"good\.pt: the network has no physics base, but the model's config gives one"):
         predictors.build_from_options({"kind": "learned", "checkpoint": str(good), "network": NETWORKS["phys_res"],
                                    "physics": {"dt": 0.01}})
+
+
+def test_a_fit_into_a_log_file_writes_its_result_and_no_chatter(flights, tmp_path, capfd):
+    """Outside a terminal (a stage under DVC), no progress bar redraws, no accelerator census,
+    no tips and no deprecations of Lightning's own: the log holds what a user reads."""
+    import logging
+
+    logging.getLogger("nanosysid").setLevel(logging.INFO)
+    train_model(NETWORKS["residual"], flights, tmp_path / "a.pt", **QUICK)  # progress None: stderr is no terminal here
+    out, err = capfd.readouterr()
+    text = out + err
+    assert "\r" not in text and "it/s" not in text, text[:500]
+    for chatter in ("GPU available", "TPU available", "Tip:", "Seed set", "deprecated", "log_every_n_steps"):
+        assert chatter not in text, chatter

@@ -9,9 +9,12 @@ same loss on the validation flights (by default run 4 of each training trajector
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import sys
+import warnings
 from pathlib import Path
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Iterator, Mapping, Sequence
 
 import numpy as np
 import pytorch_lightning as pl
@@ -80,6 +83,27 @@ class SysIdModule(pl.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": self.scheduler(opt), "monitor": "val/loss"}}
 
 
+
+# the loggers of Lightning's notes to its user (the accelerators it found, tips for its products)
+_LIGHTNING_NOTES = ("pytorch_lightning.utilities.rank_zero", "lightning_fabric.utilities.rank_zero")
+
+
+@contextlib.contextmanager
+def _quiet_lightning() -> Iterator[None]:
+    """Lightning's notes and its own deprecations kept out of the stage's log, which holds the
+    fit's result; its warnings about the fit itself still show."""
+    loggers = [logging.getLogger(name) for name in _LIGHTNING_NOTES]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.WARNING)
+    try:
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message=r".*isinstance\(treespec, LeafSpec\)", category=Warning)
+            yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)
+
 def window_tensors(flights: Sequence[Flight], horizon: int, stride: int = 1, dtype=torch.float32) -> TensorDataset:
     """Windows of all flights as ``(ỹ_0 (N, 12), u (N, H, 4), ỹ_1..H (N, H, 12))``."""
     parts = []
@@ -126,7 +150,7 @@ def train_model(
     devices: int | str = 1,
     compile: bool = True,
     threads: int = 1,
-    progress: bool = True,
+    progress: bool | None = None,
 ) -> dict[str, Any]:
     """Train one model and save its checkpoint to ``out``.
 
@@ -145,12 +169,15 @@ def train_model(
             differ from the eager one's by rounding, so the trained weights do too.
         threads: torch's threads for the whole fit, whatever the caller's count (restored
             after): the count splits sums, so it is part of what sets the weights' bytes.
+        progress: Lightning's progress bar; None: where the stage's error stream is a terminal
+            (not in a log file, where its redraws would be most of the lines).
 
     Returns:
         A summary (epochs run, best validation loss, parameter count).
     """
-    with torch_threads(int(threads)):
-        pl.seed_everything(int(seed), workers=True)
+    progress = sys.stderr.isatty() if progress is None else bool(progress)
+    with torch_threads(int(threads)), _quiet_lightning():
+        pl.seed_everything(int(seed), workers=True, verbose=False)
         torch.use_deterministic_algorithms(True)
         val_runs = set(val_runs)
         fit_f = [f for f in flights if f.run not in val_runs]
@@ -192,6 +219,8 @@ def train_model(
                 callbacks=[stop, best] + ([pl.callbacks.TQDMProgressBar()] if progress else []),
                 enable_checkpointing=False, enable_progress_bar=progress,
                 enable_model_summary=False, num_sanity_val_steps=0,
+                # dvclive logs each epoch; Lightning's step logging would warn of short epochs
+                log_every_n_steps=max(1, min(50, len(dl_fit))),
             )
         except MisconfigurationException as e:
             # Lightning's word for an accelerator or a device count this machine does not have
