@@ -58,12 +58,17 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     rel = mcu.range_relative_diff(run.outputs, ref, ex.outputs_in(flight.y))
     tol = float(mc.tolerance)
     t_est_ms = run.instructions_per_step / mcu.CLOCK_HZ * 1e3
+    graph = src / "step.onnx"
     paper = PAPER_COST.get(name, {}).get("t_inf_ms")
     result = {
         "model": name, "flight": flight.name, "start": start, "steps": run.steps,
         "max_rel_diff": rel, "tolerance": tol,
         "instructions": run.instructions_per_step, "instructions_total_run": run.instructions_total,
         "t_est_ms": t_est_ms, "t_est_note": "instructions / 168 MHz: a lower bound, a Cortex-M4 instruction takes >= 1 cycle",
+        "t_max_ms": t_est_ms * mcu.MAX_CYCLES_PER_INSTRUCTION,
+        "t_max_note": f"{mcu.MAX_CYCLES_PER_INSTRUCTION} cycles an instruction: an upper bound (the longest FPU "
+                      "instruction, 14 cycles, plus 5 flash wait states at 168 MHz)",
+        "onnx_operators": mcu.graph_operators(graph) if graph.exists() else None,
         "flash_kb": (size["text"] + size["data"]) / 1024, "ram_kb": (size["data"] + size["bss"] + size["stack"]) / 1024,
         "size_bytes": size, "paper_t_inf_ms": paper,
         "t_est_over_paper": None if paper is None else t_est_ms / paper,

@@ -42,10 +42,27 @@ def test_cost_table_shows_microcontroller_columns_only_when_measured(tmp_path):
     assert "| lstm | 25.1 | 40.2 | 2.09 |" in text and "| physics | – | – | 1.79 |" in text
     (tmp_path / "export").mkdir()
     (tmp_path / "export" / "lstm.json").write_text(json.dumps(
-        {"instructions": 61234, "t_est_ms": 0.3646, "flash_kb": 101.2, "ram_kb": 1.5, "flops": 40000}))
+        {"instructions": 61234, "t_est_ms": 0.3646, "t_max_ms": 6.927, "onnx_operators": 19, "flash_kb": 101.2,
+         "ram_kb": 1.5, "flops": 40000}))
     text = report.cost_table_md(report.load_costs(tmp_path / "eval", ["physics", "lstm"], tmp_path / "export"))
-    assert "| lstm | 25.1 | 40.2 | 61,234 | 0.365 | 101.2 | 1.5 | 2.09 |" in text
-    assert "| physics | – | – | – | – | – | – | 1.79 |" in text
+    assert "| lstm | 25.1 | 40.2 | 61,234 | 0.365 | 6.927 | 19 | 101.2 | 1.5 | 2.09 |" in text
+    assert "| physics | – | – | – | – | – | – | – | – | 1.79 |" in text
+
+
+def test_the_papers_times_are_set_against_the_bounds_of_each_step():
+    """At 168 MHz, 288 instructions take 1.71 µs at one cycle each and 32.6 µs at 19: the paper's
+    1.79 ms for the physics step is 55 times the most; 61,234 instructions take 0.364 to 6.93 ms,
+    which holds the LSTM's 2.09 ms; and the paper's phys_res is its physics plus its residual."""
+    costs = {"physics": {"paper_t_inf_ms": 1.79, "t_est_ms": 288 / 168e3, "t_max_ms": 288 * 19 / 168e3,
+                         "onnx_operators": 295},
+             "residual": {"paper_t_inf_ms": 1.03, "t_est_ms": 0.426, "t_max_ms": 0.426 * 19},
+             "phys_res": {"paper_t_inf_ms": 2.82, "t_est_ms": 0.429, "t_max_ms": 0.429 * 19},
+             "lstm": {"paper_t_inf_ms": 2.09, "t_est_ms": 61234 / 168e3, "t_max_ms": 61234 * 19 / 168e3},
+             "naive": {"paper_t_inf_ms": None}}
+    text = "\n".join(report._paper_time_lines(costs))
+    assert "`physics`: the paper's 1.79 ms is 55 times this step's most; its ONNX graph has 295 operators, 6.1 µs" in text
+    assert "`lstm`: the paper's 2.09 ms lies within this step's bounds" in text
+    assert "(1.79 + 1.03 = 2.82 ms)" in text and "naive" not in text
 
 
 def test_mae_csv_is_one_row_per_model_and_horizon():

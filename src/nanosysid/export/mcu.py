@@ -24,10 +24,15 @@ from nanosysid.export.cgen import flit
 from nanosysid.export.csource import CModel
 
 __all__ = ["ToolchainError", "require_toolchain", "range_relative_diff", "write_sources", "build", "run", "McuRun",
-           "CFLAGS", "CLOCK_HZ", "INSTALL_HINT"]
+           "CFLAGS", "CLOCK_HZ", "INSTALL_HINT", "MAX_CYCLES_PER_INSTRUCTION", "graph_operators"]
 
 FIRMWARE = Path(__file__).with_name("firmware")
 CLOCK_HZ = 168e6  # STM32F405
+# QEMU has no timing model of the Cortex-M4 (pipeline, flash wait states): cycles are not counted,
+# they lie between one an instruction and this many: 14 for VDIV.F32 and VSQRT.F32, the longest
+# (Cortex-M4 TRM, table 7-1 of the FPU's instruction timing), plus the 5 flash wait states of the
+# STM32F405 at 168 MHz (RM0090, table 10) where the ART accelerator's cache misses
+MAX_CYCLES_PER_INSTRUCTION = 19
 # fused multiply-adds (vfma) as GNU C would contract them; -std=c99 alone turns contraction off
 CFLAGS = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-O2", "-std=c99", "-ffp-contract=fast",
           "-Wall", "-Wextra", "-Werror", "-ffunction-sections", "-fdata-sections"]
@@ -35,6 +40,14 @@ TOOLS = {"arm-none-eabi-gcc": "gcc-arm-none-eabi", "arm-none-eabi-size": "binuti
          "arm-none-eabi-nm": "binutils-arm-none-eabi", "qemu-system-arm": "qemu-system-arm", "gcc": "gcc"}
 INSTALL_HINT = ("apt-get install -y --no-install-recommends gcc-arm-none-eabi libnewlib-arm-none-eabi "
                 "qemu-system-arm gcc libc6-dev   (as root; `make toolchain` does it)")
+
+
+def graph_operators(onnx_path: Path) -> int:
+    """The operators of an exported ONNX graph that compute (its constants left out): what a
+    graph runtime dispatches one by one, where the generated C runs straight through."""
+    import onnx
+
+    return sum(1 for node in onnx.load(str(onnx_path)).graph.node if node.op_type != "Constant")
 
 
 def range_relative_diff(got: np.ndarray, ref: np.ndarray, samples: np.ndarray) -> float:
