@@ -331,33 +331,33 @@ class Claim:
     def swap(self, tmp: Path) -> None:
         """Put the written ``tmp`` in the output's place. Inside a stage run the version it
         replaces is kept aside (a rename: no space needed) until the run ends, so that a run
-        failing at a later output puts this one back as it was, its record too."""
+        failing at a later output puts this one back as it was, its record too; elsewhere a
+        file is replaced in one rename and a folder's old version removed once the new is in."""
         import tempfile
 
         run = _run.get()
-        if self.scratch or run is None:
-            if self.kind == "folder" and self.path.exists():
-                old = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.{TMP}", suffix=".old", dir=self.path.parent))
-                try:
-                    os.replace(self.path, old / "x")
-                except OSError:
-                    old.rmdir()  # the output could not be moved aside (immutable, say): it stays as it was
-                    raise
-                os.replace(tmp, self.path)
-                shutil.rmtree(old)
-            else:
-                os.replace(tmp, self.path)
-            return
+        undoable = run is not None and not self.scratch
         old = None
-        if os.path.lexists(self.path):
+        if os.path.lexists(self.path) and (undoable or self.kind == "folder"):
             old = Path(tempfile.mkdtemp(prefix=f".{self.path.name}.{TMP}", suffix=".old", dir=self.path.parent))
             try:
                 os.replace(self.path, old / "x")
             except OSError:
-                old.rmdir()
+                old.rmdir()  # the output could not be moved aside (immutable, say): it stays as it was
                 raise
+        try:
+            os.replace(tmp, self.path)
+        except OSError:
+            if old is not None:  # the old version back in its place
+                os.replace(old / "x", self.path)
+                old.rmdir()
+            raise
+        if not undoable:
+            if old is not None:
+                shutil.rmtree(old)
+            return
+        if old is not None:
             run.aside.append(old)
-        os.replace(tmp, self.path)
         rec, before, made = record_path(self.path), self.before, self.made
 
         def back() -> None:

@@ -154,3 +154,31 @@ def test_an_output_that_cannot_be_moved_aside_is_left_as_it_was_with_nothing_bes
             (tmp / "a.csv").write_text("new")
     assert (out / "a.csv").read_text() == "old"
     assert [p.name for p in tmp_path.iterdir() if p.name != "split" and not p.name.endswith(".nanosysid")] == []
+
+
+@pytest.mark.parametrize("in_a_stage", [False, True], ids=["from Python", "in a stage"])
+def test_a_new_folder_that_cannot_be_put_in_place_leaves_the_old_one_there(tmp_path, monkeypatch, params, capsys,
+                                                                          in_a_stage):
+    out = tmp_path / "split"
+    with dataio.atomic_dir(out) as tmp:
+        (tmp / "a.csv").write_text("old")
+    real_replace = os.replace
+
+    def refuse_the_new_one(src, dst):
+        if Path(dst) == out and Path(src).name.endswith(".tmp"):
+            raise OSError(errno.EIO, "Input/output error", str(dst))
+        return real_replace(src, dst)
+
+    def main(cfg=None):
+        monkeypatch.setattr(dataio.os, "replace", refuse_the_new_one)
+        with dataio.atomic_dir(out) as tmp:
+            (tmp / "a.csv").write_text("new")
+
+    if in_a_stage:
+        main.__module__ = "stages.faulty"
+        assert run_stage(main, description="", argv=["--params", str(params)]) == 2
+    else:
+        with pytest.raises(OSError):
+            main()
+    assert (out / "a.csv").read_text() == "old"
+    assert [p.name for p in tmp_path.iterdir() if p.name != "split" and not p.name.endswith(".nanosysid")] == []
