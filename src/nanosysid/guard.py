@@ -247,8 +247,8 @@ def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Ite
                 step()
         raise
     else:
-        for old in run.aside:
-            shutil.rmtree(old, ignore_errors=True) if old.is_dir() else old.unlink(missing_ok=True)
+        for old in run.aside:  # each a folder holding the replaced version
+            shutil.rmtree(old, ignore_errors=True)
     finally:
         _run.reset(token)
 

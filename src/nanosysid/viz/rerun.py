@@ -81,6 +81,11 @@ def _blueprint(models: list[str], notes: bool = False):
     return blueprint
 
 
+# s: a flush waits no longer (the SDK's file writer, stopped by a full disk, leaves it waiting
+# for ever)
+FLUSH_TIMEOUT = 120.0
+_FULL = 1 << 20  # bytes free below which a failed write is the disk's
+
 
 @contextlib.contextmanager
 def _disk_full_named(tmp: Path) -> Iterator[None]:
@@ -93,10 +98,6 @@ def _disk_full_named(tmp: Path) -> Iterator[None]:
             raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(tmp)) from None
         raise
 
-
-_FULL = 1 << 20  # bytes free below which a failed write is the disk's
-# s; a file writer stopped by a full disk leaves a flush waiting for ever
-FLUSH_TIMEOUT = 120.0
 
 def write_recording(flight: Flight, rollouts: Mapping[str, Kept], path: Path, *,
                     verdicts: str | None = None) -> None:
@@ -112,7 +113,6 @@ def write_recording(flight: Flight, rollouts: Mapping[str, Kept], path: Path, *,
     """
     import rerun as rr
 
-    T = len(flight)
     first = next(iter(rollouts.values()))
     n, H, starts = len(first.last), first.paths.shape[1], first.starts
     if any(len(k.last) != n or k.stride != first.stride or k.paths.shape[1] != H for k in rollouts.values()):
