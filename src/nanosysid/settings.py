@@ -128,6 +128,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("discover.oracle.dt", POSITIVE), ("discover.oracle.substeps", COUNT), ("discover.oracle.effects.*", NONNEG),
     ("discover.oracle.rotor_delay", NONNEG_OR_NULL), ("discover.oracle.compile", FLAG), ("discover.oracle.*", TEXT),
     ("discover.oracle", FREE),  # a model's block, or null where no oracle applies (real data)
+    ("drone_models.name", TEXT), ("drone_models.source", TEXT),
     # the initialization-window track
     ("window.init", COUNT), ("window.models", TEXT), ("window.base", TEXT), ("window.ridge", POSITIVE),
     ("window.identified", TEXT), ("window.out_dir", TEXT),
