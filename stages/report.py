@@ -79,8 +79,12 @@ def main(cfg: DictConfig) -> None:
                  text.format(h=H, flight=flight.name, a=a, b=b,
                              oracle="; the oracle, dashed, is the physical limit" if "oracle" in rows else ""))
                 for key, text in FIGURES.items()]
+    markdown = tables.benchmark_markdown(rows, costs, horizons, captions)
+    if rc.get("note"):  # a profile's: these are not the benchmark's figures
+        title, rest = markdown.split("\n", 1)
+        markdown = f"{title}\n\n**{rc.note[0].upper()}{rc.note[1:]}.**\n{rest}"
     with atomic_file(Path(rc.markdown)) as tmp:
-        tmp.write_text(tables.benchmark_markdown(rows, costs, horizons, captions))
+        tmp.write_text(markdown)
     with atomic_file(Path(rc.latex)) as tmp:
         tmp.write_text(tables.results_table_tex(rows, horizons) + "\n" + tables.cost_table_tex(costs))
     with atomic_file(Path(rc.plots)) as tmp:

@@ -54,11 +54,9 @@ class DvcRepo:
         self.sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", message, cwd=cwd)
 
 
-# the campaign stage at its smallest: one world; the hypotheses' worlds check likewise
-TINY_CAMPAIGN = ["campaign.worlds=1", "campaign.duration=10.0", "campaign.families.thrust_lag=0",
-                 "campaign.families.turbulence=0", "campaign.families.state=0", "campaign.families.gusts=0",
-                 "campaign.families.residual_delay=0", "hypotheses.worlds.com_offset=1", "hypotheses.worlds.turbulence=0", "hypotheses.worlds.rotor_drag=0",
-                 "hypotheses.duration=6.0"]
+# the README's first look (`make quick`): short flights, two epochs, the campaign and the
+# hypotheses' worlds check at one world
+QUICK = ["profile=quick"]
 # the export and MCU stages of one model: the others' are the same two DVC stages over another
 # model's files (tests/test_pipeline.py runs them for a physics, a learned and a discovered model)
 ONE_EXPORT = [f"~export.models.{m}" for m in ("residual", "phys_res", "lstm", "discovered")]
@@ -75,7 +73,7 @@ def _no_toolchain() -> list[str]:
 
 
 NO_TOOLCHAIN = _no_toolchain()
-SMALL = [a for o in TINY_SIM + TINY_CAMPAIGN + ONE_EXPORT + NO_TOOLCHAIN for a in ("-S", o)]
+SMALL = [a for o in QUICK + ONE_EXPORT + NO_TOOLCHAIN for a in ("-S", o)]
 
 
 @pytest.fixture(scope="module")
@@ -83,6 +81,16 @@ def dvc_repo(tmp_path_factory):
     repo = DvcRepo(tmp_path_factory.mktemp("dvc") / "repo", dvc_env())
     out = repo.sh("dvc", "exp", "run", *SMALL)
     assert all(f"Running stage '{s}'" in out for s in ("evaluate@physics", "hypotheses")), out
+    # the profile is the tests' tiny pipeline, and its report says it is no benchmark's
+    params = yaml.safe_load((repo.root / "params.yaml").read_text())
+    for override in TINY_SIM:
+        key, _, value = override.partition("=")
+        node = params
+        for part in key.split("."):
+            node = node[part]
+        want = yaml.safe_load(value)
+        assert ({k: node[k] for k in want} if isinstance(want, dict) else node) == want, override
+    assert "not the benchmark's figures" in (repo.root / "reports" / "benchmark.md").read_text().split("##")[0]
     # the campaign is its own pipeline (tests/test_repro.py runs a second pipeline file apart, and
     # tests/test_launcher.py the campaign's stage): the benchmark's run leaves it out, and `dvc
     # status` names it

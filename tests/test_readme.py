@@ -345,6 +345,8 @@ def test_the_readmes_bench_command_names_benchmarks_that_exist():
 RUN_BY = {
     "make repro": "tests/test_repro.py::test_make_repro_and_make_test_write_no_tracked_file_and_install_only_what_is_missing",
     "make test": ".ci/run",
+    "make quick": "tests/test_repro.py::test_make_quick_composes_the_profile_and_runs_both_pipelines_without_the_rigs"
+                  "_stages",
     "make bench": "tests/test_readme.py::test_the_readmes_bench_command_names_benchmarks_that_exist",
     ".venv/bin/rerun ": "tests/test_readme.py::test_the_readmes_recording_command_names_a_recording_visualize_writes"
                         "_and_the_viewer_it_installs",

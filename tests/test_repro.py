@@ -195,6 +195,26 @@ def test_make_repro_and_make_test_write_no_tracked_file_and_install_only_what_is
     assert "apt-get" in subprocess.run(["make", "-n", "toolchain"], cwd=root, capture_output=True, text=True).stdout
 
 
+def test_make_quick_composes_the_profile_and_runs_both_pipelines_without_the_rigs_stages(capsys):
+    # the profile's stages are the tests' tiny pipeline (tests/test_dvc.py runs it through DVC)
+    root = Path(__file__).resolve().parents[1]
+    plan = subprocess.run(["make", "-n", "-B", "quick"], cwd=root, capture_output=True, text=True, check=True).stdout
+    lines = plan.splitlines()
+    compose = next(i for i, x in enumerate(lines) if "nanosysid.config compose profile=quick" in x)
+    runs = [i for i, x in enumerate(lines) if "nanosysid.repro" in x]
+    assert len(runs) == 2 and compose < runs[0], plan
+    assert "--skip-rig" in lines[runs[0]] and "--pipeline campaign/dvc.yaml" in lines[runs[1]], plan
+    for i in runs:
+        out = (lines[i] + " " + lines[i + 1]).split("--out", 1)[1].split()[0]
+        assert subprocess.run(["git", "check-ignore", "-q", out], cwd=root).returncode == 0, out
+    from nanosysid.repro import _with_rig
+
+    graph = {"split": set(), "rig_fetch": set(), "rig_split": {"rig_fetch"}, "report": {"split"},
+             "rig_report": {"rig_split", "report"}}
+    assert _with_rig(graph, skip=True) == {"split": set(), "report": {"split"}}
+    assert "rig pipeline skipped: --skip-rig" in capsys.readouterr().out
+
+
 def test_make_repro_stops_before_any_stage_where_it_cannot_install_the_toolchain(tmp_path):
     """Not root and no toolchain: `make repro`'s first step stops with the command and the setting,
     and lets a configuration without the microcontroller through."""

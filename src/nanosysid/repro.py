@@ -487,12 +487,16 @@ RECORDED = Path("reports/repro.json")  # the stage times `make readme` recorded 
 RIG_PREFIX = "rig_"  # the rig pipeline's stages (dvc.yaml), on the real flights
 
 
-def _with_rig(upstream: dict[str, set[str]], params: Path = Path("params-rig.yaml")) -> dict[str, set[str]]:
+def _with_rig(upstream: dict[str, set[str]], params: Path = Path("params-rig.yaml"), *, skip: bool = False
+              ) -> dict[str, set[str]]:
     """The stages to run: the rig pipeline's only where its files can be had (the simulated
-    world's pipeline needs no data and no network); one line says which."""
+    world's pipeline needs no data and no network) and not ``skip``; one line says which."""
     rig = {s for s in upstream if s.startswith(RIG_PREFIX)}
     if not rig:
         return upstream
+    if skip:
+        print("rig pipeline skipped: --skip-rig")
+        return {s: ups - rig for s, ups in upstream.items() if s not in rig}
     from omegaconf import OmegaConf
 
     from nanosysid.rig.fetch import available
@@ -515,6 +519,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, default=Path("reports/repro.json"), help="the record of stage times")
     p.add_argument("--pipeline", default="dvc.yaml", choices=PIPELINES,
                    help="the pipeline file whose stages run (default dvc.yaml, the benchmark's)")
+    p.add_argument("--skip-rig", action="store_true", help="leave the rig pipeline's stages out (the simulated "
+                   "world's alone, as `make quick` runs it)")
     a = p.parse_args(argv)
     if a.jobs < 1:
         p.error(f"--jobs must be at least 1, got {a.jobs}")
@@ -549,7 +555,7 @@ def main(argv: list[str] | None = None) -> int:
     except DvcException as e:  # no repository, a malformed dvc.yaml: DVC's own message, no traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
-    upstream = _with_rig(upstream)
+    upstream = _with_rig(upstream, skip=a.skip_rig)
     LOG_DIR.mkdir(parents=True, exist_ok=True)
     # this machine's last run where there is one, else the times the repository records
     order = best_order(upstream, _last_times(a.out) or _last_times(RECORDED.with_name(a.out.name.replace(".last", ""))),
@@ -590,7 +596,7 @@ def main(argv: list[str] | None = None) -> int:
     except DvcException as e:
         print(f"the other pipelines' status is not known: {e}", file=sys.stderr)
     command = f"python -m nanosysid.repro --jobs {a.jobs}" + (f" --pipeline {a.pipeline}" if a.pipeline != "dvc.yaml"
-                                                              else "")
+                                                              else "") + (" --skip-rig" if a.skip_rig else "")
     write_record(a.out, command,
                  {"jobs": a.jobs, "stages": {s: ran[s] for s in order if s in ran}, "skipped": skipped, "total_s": total})
     return 0

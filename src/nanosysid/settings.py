@@ -113,7 +113,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("identify.savgol_window", COUNT), ("identify.savgol_order", NONNEG_COUNT),
     ("identify.iv_blocks", COUNT), ("identify.iv_lags", NONNEG), ("identify.inertia_z_range", POSITIVE),
     ("report.lineplot.flight", TEXT_OR_NULL), ("report.lineplot.window", NONNEG), ("report.lineplot.smooth", COUNT),
-    ("report.lineplot.models", TEXT), ("report.*", TEXT),
+    ("report.lineplot.models", TEXT), ("report.note", TEXT_OR_NULL), ("report.*", TEXT),
     ("visualize.out_dir", TEXT), ("visualize.stride", COUNT),
     ("export.models.*", TEXT), ("export.out_dir", TEXT),
     ("export.onnx_samples", COUNT), ("export.onnx_tolerance", POSITIVE), ("export.mcu.flight", TEXT_OR_NULL),
