@@ -113,7 +113,7 @@ def copied(tmp_path: Path, env: dict):
 
     repo = tmp_path / "repo"
     repo.mkdir()
-    for item in ("dvc.yaml", "dvc.lock", "campaign", "params.yaml", "params-rig.yaml", "conf", "stages", "src",
+    for item in ("dvc.yaml", "dvc.lock", "rig", "campaign", "params.yaml", "params-rig.yaml", "conf", "stages", "src",
                  ".dvcignore", ".gitignore"):
         (shutil.copytree if (ROOT / item).is_dir() else shutil.copy)(ROOT / item, repo / item,
                                                                       **({"ignore": shutil.ignore_patterns("__pycache__")}
@@ -160,8 +160,8 @@ def test_adding_the_readmes_example_model_reruns_its_own_stages_the_report_and_t
     # its own stages (the simulated world's and the rig's training, its evaluation), and those
     # that read every model: the reports, the recordings and the rig's comparison with the paper
     # (whose settings hold every model); no other model is trained or scored
-    assert stale == {"train@gru", "evaluate@gru", "rig_train@gru", "report", "visualize", "rig_report",
-                     "rig_visualize", "rig_compare"}, stale
+    assert stale == {"train@gru", "evaluate@gru", "rig/dvc.yaml:rig_train@gru", "report", "visualize",
+                     "rig/dvc.yaml:rig_report", "rig/dvc.yaml:rig_visualize", "rig/dvc.yaml:rig_compare"}, stale
 
 
 @pytest.mark.parametrize("module", ["src/nanosysid/preprocess/sync.py", "src/nanosysid/effects.py",

@@ -16,12 +16,13 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def stamped(begin, end, stages):
     """A generated section (of the README or a docs page), the sources its stamp names, and the
-    outputs of ``stages`` as the committed ``dvc.lock`` records them."""
+    outputs of ``stages`` as the committed locks (``dvc.lock``, ``rig/dvc.lock``) record them."""
     text = docpages.page_of(begin).read_text()
     assert text.count(begin) == 1 and text.count(end) == 1
     part = text[text.index(begin):text.index(end)]
-    lock = yaml.safe_load((ROOT / "dvc.lock").read_text())
-    outs = {o["path"]: o["md5"] for st in stages for o in lock["stages"][st]["outs"]}
+    locked = {name: st for f in ("dvc.lock", "rig/dvc.lock")
+              for name, st in yaml.safe_load((ROOT / f).read_text())["stages"].items()}
+    outs = {o["path"]: o["md5"] for st in stages for o in locked[st]["outs"]}
     return part, dict(re.findall(r"(\S+) md5 ([0-9a-f]{32})", part)), outs
 
 

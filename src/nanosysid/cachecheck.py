@@ -37,6 +37,9 @@ class Damaged:
                 f"not to its name")
 
 
+LOCKS = ("dvc.lock", "rig/dvc.lock")  # the benchmark's pipelines' locks (the simulated world's, the real flights')
+
+
 def _objects(lock: dict) -> list[tuple[str, str, str]]:
     """(stage, workspace path, md5) of every output ``dvc.lock`` records, a folder's as its
     listing's hash (``….dir``)."""
@@ -45,13 +48,17 @@ def _objects(lock: dict) -> list[tuple[str, str, str]]:
 
 
 def damaged(root: Path = Path("."), cache: Path | None = None) -> list[Damaged]:
-    """Every object of the repository's cache (``cache`` where given) that
-    ``root/dvc.lock`` names, present, and not hashing to its name; a folder's listing and each
-    file it lists. Objects not in the cache are DVC's to report (``not in cache``)."""
+    """Every object of the repository's cache (``cache`` where given) that the benchmark's locks
+    under ``root`` (:data:`LOCKS`) name, present, and not hashing to its name; a folder's listing
+    and each file it lists. Objects not in the cache are DVC's to report (``not in cache``)."""
     root = Path(root)
-    try:
-        lock = yaml.safe_load((root / "dvc.lock").read_text()) or {}
-    except (FileNotFoundError, yaml.YAMLError):  # no lock, or one DVC itself refuses with its message
+    lock: dict = {"stages": {}}
+    for f in LOCKS:
+        try:
+            lock["stages"].update((yaml.safe_load((root / f).read_text()) or {}).get("stages") or {})
+        except (FileNotFoundError, yaml.YAMLError, AttributeError):  # no lock, or one DVC refuses with its message
+            continue
+    if not lock["stages"]:
         return []
     if cache is None:
         from dvc.repo import Repo

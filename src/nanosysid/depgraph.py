@@ -33,9 +33,10 @@ __all__ = ["module_file", "direct_imports", "by_name", "imported_files", "stages
 OWN = ("nanosysid", "stages")
 ROOT = Path(__file__).resolve().parents[2]  # the project: src/nanosysid/depgraph.py
 CODE = ("src/", "stages/")  # deps entries that are code, which the graph decides
-# the project's pipelines, each with its own lock: the benchmark's (`make repro`) and the campaign's
-# (`make campaign`); every stage runs at the project's root (the campaign's ``wdir: ..``)
-PIPELINES = ("dvc.yaml", "campaign/dvc.yaml")
+# the project's pipelines, each with its own lock: the benchmark's on the simulated world and on the
+# real flights (both `make repro`) and the campaign's (`make campaign`); every stage runs at the
+# project's root (the others' ``wdir: ..``)
+PIPELINES = ("dvc.yaml", "rig/dvc.yaml", "campaign/dvc.yaml")
 
 
 def _src(root: Path) -> Path:

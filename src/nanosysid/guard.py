@@ -102,14 +102,39 @@ def _interpolate(text: str, cfg: Any, scope: dict[str, Any]) -> str | None:
         return None
 
 
-def declared(cfg: Any, dvc_yaml: str | os.PathLike = "dvc.yaml", stage: str | None = None
-             ) -> dict[str, tuple[list[str], list[str]]]:
-    """Every stage of ``dvc_yaml`` (``name`` or ``name@item``): its dependencies and outputs, the
+# the benchmark's pipeline files, the simulated world's and the real flights': every stage of
+# either is a stage whose outputs the guard knows
+PIPELINE_FILES = ("dvc.yaml", "rig/dvc.yaml")
+
+
+def _pipeline_stages(files: Sequence[str | os.PathLike]) -> list[tuple[str, dict, Path, Path]]:
+    """``(name, entry, working directory, lock file)`` of every stage of the pipeline ``files``
+    that exist (a stage's ``wdir`` is relative to its file)."""
+    got = []
+    for f in map(Path, files):
+        if not f.is_file():
+            continue
+        for name, st in ((_yaml(f.read_text()) or {}).get("stages") or {}).items():
+            got.append((name, st, f.parent / str(st.get("do", st).get("wdir", ".")), f.parent / "dvc.lock"))
+    return got
+
+
+def _pipeline_files(root: Path, dvc_yaml: str | os.PathLike | Sequence[str | os.PathLike] | None) -> list[Path]:
+    if dvc_yaml is None:
+        return [root / f for f in PIPELINE_FILES]
+    return [Path(dvc_yaml)] if isinstance(dvc_yaml, (str, os.PathLike)) else [Path(f) for f in dvc_yaml]
+
+
+def declared(cfg: Any, dvc_yaml: str | os.PathLike | Sequence[str | os.PathLike] | None = None,
+             stage: str | None = None) -> dict[str, tuple[list[str], list[str]]]:
+    """Every stage of ``dvc_yaml`` (``name`` or ``name@item``; by default the benchmark's pipeline
+    files, :data:`PIPELINE_FILES`): its dependencies and outputs, the
     paths resolved with ``cfg`` (the run's settings, overrides included). Empty without the file.
     With ``stage`` (the one running), the stages of another pipeline (whose command reads another
     params file than ``stage``'s: ``--params``, ``params.yaml`` without) are resolved with their
     own file's settings."""
-    return {k: ([p for p, _ in d], [p for p, _ in o]) for k, (d, o) in _declared(cfg, dvc_yaml, stage).items()}
+    return {k: ([p for p, _ in d], [p for p, _ in o])
+            for k, (d, o) in _declared(cfg, _pipeline_files(Path("."), dvc_yaml), stage).items()}
 
 
 _PARAMS_ARG = re.compile(r"--params[= ](\S+)")
@@ -122,38 +147,34 @@ def _params_of(cmd: str) -> str:
     return m.group(1) if m else DEFAULT_PARAMS
 
 
-def stage_name(module: str, params: str | os.PathLike | None, dvc_yaml: str | os.PathLike = "dvc.yaml") -> str:
-    """The name in ``dvc_yaml`` of the stage that runs ``python -m <module>`` on ``params`` (the
-    rig pipeline's ``rig_sync`` for ``stages.sync`` on ``params-rig.yaml``); the module's last
-    part where no stage does."""
-    path = Path(dvc_yaml)
+def stage_name(module: str, params: str | os.PathLike | None,
+               dvc_yaml: str | os.PathLike | Sequence[str | os.PathLike] | None = None) -> str:
+    """The name in ``dvc_yaml`` (by default the benchmark's pipeline files) of the stage that runs
+    ``python -m <module>`` on ``params`` (the rig pipeline's ``rig_sync`` for ``stages.sync`` on
+    ``params-rig.yaml``); the module's last part where no stage does."""
     want = _resolve(params or DEFAULT_PARAMS)
-    if path.is_file():
-        for name, st in ((_yaml(path.read_text()) or {}).get("stages") or {}).items():
-            cmd = str(st.get("do", st).get("cmd", ""))
-            if re.search(rf"python -m {re.escape(module)}(\s|$)", cmd) and _resolve(path.parent / _params_of(cmd)) == want:
-                return name
+    for name, st, wdir, _ in _pipeline_stages(_pipeline_files(Path("."), dvc_yaml)):
+        cmd = str(st.get("do", st).get("cmd", ""))
+        if re.search(rf"python -m {re.escape(module)}(\s|$)", cmd) and _resolve(wdir / _params_of(cmd)) == want:
+            return name
     return module.rpartition(".")[2]
 
 
-def _declared(cfg: Any, dvc_yaml: str | os.PathLike, stage: str | None = None
+def _declared(cfg: Any, files: Sequence[Path], stage: str | None = None
               ) -> dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]]:
     from omegaconf import OmegaConf
 
-    path = Path(dvc_yaml)
-    if not path.is_file():
-        return {}
-    stages = (_yaml(path.read_text()) or {}).get("stages", {})
+    entries = _pipeline_stages(files)
     out: dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]] = {}
     others: dict[Path, Any] = {}
 
-    def params_file(st: dict) -> Path:
-        return _resolve(path.parent / _params_of(str(st.get("do", st).get("cmd", ""))))
+    def params_file(st: dict, wdir: Path) -> Path:
+        return _resolve(wdir / _params_of(str(st.get("do", st).get("cmd", ""))))
 
-    base = None if stage is None else stages.get(stage.partition("@")[0])
-    run_params = None if base is None else params_file(base)
-    for name, st in stages.items():
-        own = params_file(st)
+    base = None if stage is None else next(((st, w) for n, st, w, _ in entries if n == stage.partition("@")[0]), None)
+    run_params = None if base is None else params_file(*base)
+    for name, st, wdir, _ in entries:
+        own = params_file(st, wdir)
         if run_params is not None and own != run_params:
             if own not in others:
                 try:
@@ -219,15 +240,17 @@ def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Ite
     inputs and outputs ``dvc.yaml`` in ``root`` declares (resolved with ``cfg``; the other
     pipeline's stages with their own params file)."""
     root = Path(root)
-    layout = _declared(cfg, root / "dvc.yaml", stage) if cfg is not None else {}
+    layout = _declared(cfg, [root / f for f in PIPELINE_FILES], stage) if cfg is not None else {}
     items = [name for name in layout if name.startswith(f"{stage}@")]
     if stage not in layout and len(items) == 1:
         # a stage run once per item of a list whose command is the same for each (quality@sim)
         stage = items[0]
     deps, outs = layout.get(stage, ([], []))
     others = {_resolve(o): name for name, (_, os_) in layout.items() if name != stage for o, _ in os_}
+    lock = next((lk for n, _, _, lk in _pipeline_stages([root / f for f in PIPELINE_FILES])
+                 if n == stage.partition("@")[0]), root / "dvc.lock")
     run = _Run(stage, tuple(_resolve(d) for d, _ in deps), tuple(_resolve(o) for o, _ in outs), others,
-               _lock_outs(stage, root / "dvc.lock"))
+               _lock_outs(stage, lock))
     # every declared output against the inputs and the other stages' outputs before any work: a
     # wrong path fails in a second, not after training (what exists there is checked on writing)
     for out, template in outs:

@@ -5,7 +5,8 @@ single-threaded stage runs, and the three trainings, the campaign and the evalua
 for each other although none reads another's outputs. DVC lets separate ``dvc repro <stage>``
 calls on one repository run at once: each holds the repository's lock only to check and to
 record its stage, not while the stage's command runs. ``python -m nanosysid.repro --jobs 2``
-runs every stage of ``dvc.yaml`` that way, as ``dvc --wait-for-lock repro --single-item
+runs every stage of the benchmark's two pipeline files (``dvc.yaml``, the simulated world's, and
+``rig/dvc.yaml``, the real flights') that way, as ``dvc --wait-for-lock repro --single-item
 <stage>``, once every stage it depends on has finished, at most ``jobs`` at a time, in the
 order whose schedule, played out with the stage times of the last record, ends first
 (:func:`best_order`). ``--pipeline campaign/dvc.yaml`` runs the campaign's pipeline instead
@@ -71,7 +72,7 @@ from collections import deque  # noqa: E402
 from concurrent.futures import FIRST_COMPLETED, Future, ThreadPoolExecutor, wait  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
-from typing import Callable, Mapping  # noqa: E402
+from typing import Callable, Mapping, Sequence  # noqa: E402
 
 from tqdm import tqdm  # noqa: E402
 
@@ -100,21 +101,27 @@ class StageRun:
     skipped: bool = False
 
 
-def stage_graph(root: Path = Path("."), pipeline: str = "dvc.yaml") -> dict[str, set[str]]:
-    """Each stage of one pipeline file of the repository (``train@lstm``;
-    ``campaign/dvc.yaml:campaign@sim``) and the stages of that file it depends on, as DVC's own
+def stage_graph(root: Path = Path("."), pipeline: str | Sequence[str] = "dvc.yaml") -> dict[str, set[str]]:
+    """Each stage of the pipeline files of the repository (``train@lstm``;
+    ``campaign/dvc.yaml:campaign@sim``) and the stages of those files it depends on, as DVC's own
     index sees them; stages without a command (``dvc add``-ed data) are left out."""
     from dvc.repo import Repo
 
+    files = [pipeline] if isinstance(pipeline, str) else list(pipeline)
     with Repo(str(root)) as repo:
         graph = repo.index.graph  # an edge runs from a stage to a stage it depends on
-        path = (Path(repo.root_dir) / pipeline).resolve()
-        runnable = {s for s in graph.nodes if getattr(s, "cmd", None) and Path(s.dvcfile.path).resolve() == path}
+        paths = {(Path(repo.root_dir) / f).resolve() for f in files}
+        runnable = {s for s in graph.nodes if getattr(s, "cmd", None) and Path(s.dvcfile.path).resolve() in paths}
         return {s.addressing: {d.addressing for d in graph.successors(s) if d in runnable} for s in runnable}
 
 
+# what each command runs: `make repro` the benchmark's two pipelines (the simulated world's and
+# the rig's, side by side), `make campaign` the campaign's
+RUNS = {"dvc.yaml": ("dvc.yaml", "rig/dvc.yaml"), "campaign/dvc.yaml": ("campaign/dvc.yaml",)}
+
+
 # the command that runs each pipeline, for the line on what the others would rerun
-COMMANDS = {"dvc.yaml": "make repro", "campaign/dvc.yaml": "make campaign"}
+COMMANDS = {"dvc.yaml": "make repro", "rig/dvc.yaml": "make repro", "campaign/dvc.yaml": "make campaign"}
 
 
 def lock_of(pipeline: str) -> tuple[Path, Path]:
@@ -131,7 +138,7 @@ def others_status(pipeline: str, root: Path = Path(".")) -> list[str]:
     lines = []
     with Repo(str(root)) as repo:
         for other in PIPELINES:
-            if other == pipeline or not (Path(repo.root_dir) / other).is_file():
+            if other in RUNS.get(pipeline, (pipeline,)) or not (Path(repo.root_dir) / other).is_file():
                 continue
             stale = sorted(name.partition(":")[2] or name for name in repo.status(targets=[other]))
             lines.append(f"{other}: " + (f"would rerun {', '.join(stale)} (`{COMMANDS.get(other, 'dvc repro ' + other)}`)"
@@ -268,13 +275,14 @@ class _DvcStages:
     reaches only the runner, which passes it on once: :meth:`stop`), keeping a copy of
     ``dvc.lock`` each time a call ends with it whole."""
 
-    def __init__(self, env: Mapping[str, str], log_dir: Path, lock: Path = LOCK, good: Path = GOOD_LOCK,
+    def __init__(self, env: Mapping[str, str], log_dir: Path, locks: Sequence[tuple[Path, Path]] = ((LOCK, GOOD_LOCK),),
                  live: Path = LIVE) -> None:
-        self.env, self.log_dir, self.lock, self.good, self.live = dict(env), log_dir, lock, good, live
+        self.env, self.log_dir, self.locks, self.live = dict(env), log_dir, list(locks), live
         self._live: dict[subprocess.Popen, str] = {}
         self._guard = threading.Lock()
         self.stopping = False
-        keep_whole(lock, good)
+        for lock, good in self.locks:
+            keep_whole(lock, good)
         self._record()
 
     def _record(self) -> None:
@@ -297,7 +305,8 @@ class _DvcStages:
             with self._guard:
                 self._live.pop(proc, None)
                 self._record()
-        keep_whole(self.lock, self.good)
+        for lock, good in self.locks:
+            keep_whole(lock, good)
         seconds = round(time.monotonic() - t0, 1)
         return StageRun(rc, seconds, skipped=bool(SKIPPED.search(log.read_text(errors="replace"))))
 
@@ -484,14 +493,14 @@ def _last_times(path: Path) -> dict[str, float]:
 
 
 RECORDED = Path("reports/repro.json")  # the stage times `make readme` recorded (tracked)
-RIG_PREFIX = "rig_"  # the rig pipeline's stages (dvc.yaml), on the real flights
+RIG_PREFIX = "rig_"  # the rig pipeline's stages (rig/dvc.yaml), on the real flights
 
 
 def _with_rig(upstream: dict[str, set[str]], params: Path = Path("params-rig.yaml"), *, skip: bool = False
               ) -> dict[str, set[str]]:
     """The stages to run: the rig pipeline's only where its files can be had (the simulated
     world's pipeline needs no data and no network) and not ``skip``; one line says which."""
-    rig = {s for s in upstream if s.startswith(RIG_PREFIX)}
+    rig = {s for s in upstream if (s.partition(":")[2] or s).startswith(RIG_PREFIX)}
     if not rig:
         return upstream
     if skip:
@@ -518,13 +527,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--jobs", type=int, default=2, help="stages at a time (default 2)")
     p.add_argument("--out", type=Path, default=Path("reports/repro.json"), help="the record of stage times")
     p.add_argument("--pipeline", default="dvc.yaml", choices=PIPELINES,
-                   help="the pipeline file whose stages run (default dvc.yaml, the benchmark's)")
+                   help="the pipeline file whose stages run (default dvc.yaml: the benchmark's, with rig/dvc.yaml)")
     p.add_argument("--skip-rig", action="store_true", help="leave the rig pipeline's stages out (the simulated "
                    "world's alone, as `make quick` runs it)")
     a = p.parse_args(argv)
     if a.jobs < 1:
         p.error(f"--jobs must be at least 1, got {a.jobs}")
-    lock, good = lock_of(a.pipeline)
+    files = RUNS.get(a.pipeline, (a.pipeline,))
+    locks = [lock_of(f) for f in files]
     from dvc.exceptions import DvcException
 
     # a killed run's calls stopped first: they may be writing dvc.lock, which the graph reads
@@ -551,7 +561,7 @@ def main(argv: list[str] | None = None) -> int:
               + ("; DVC's .dvc/tmp/rwlock, cut short, was removed" if cleared else "")
               + "; going on from there", file=sys.stderr)
     try:
-        upstream = stage_graph(pipeline=a.pipeline)
+        upstream = stage_graph(pipeline=files)
     except DvcException as e:  # no repository, a malformed dvc.yaml: DVC's own message, no traceback
         print(f"error: {e}", file=sys.stderr)
         return 2
@@ -563,7 +573,7 @@ def main(argv: list[str] | None = None) -> int:
     env = dict(os.environ)
     if a.jobs > 1:
         env["OMP_WAIT_POLICY"] = "PASSIVE"
-    stages = _DvcStages(env, LOG_DIR, lock, good)
+    stages = _DvcStages(env, LOG_DIR, locks)
     t0 = time.monotonic()
     # an interruption is the runner's to pass on, also where its starter ignores SIGINT (`make repro &`)
     signal.signal(signal.SIGINT, signal.default_int_handler)
@@ -574,7 +584,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         stages.stop()
         stages.close()
-        put_back, cleared = repair_lock(lock, good), repair_rwlock()
+        put_back, cleared = any([repair_lock(*pair) for pair in locks]), repair_rwlock()
         print("\ninterrupted: the stages that were running stopped unrecorded"
               + ("; dvc.lock, cut short, was put back as it was after the last stage that ended" if put_back else "")
               + ("; DVC's .dvc/tmp/rwlock, cut short, was removed" if cleared else "")
