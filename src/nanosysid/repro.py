@@ -130,15 +130,16 @@ def lock_of(pipeline: str) -> tuple[Path, Path]:
     return lock, LOG_DIR / (lock.as_posix().replace("/", "_") + ".whole")
 
 
-def others_status(pipeline: str, root: Path = Path(".")) -> list[str]:
+def others_status(pipeline: str | Sequence[str], root: Path = Path(".")) -> list[str]:
     """One line per other pipeline of :data:`~nanosysid.depgraph.PIPELINES`: up to date, or the
     stages it would rerun and the command that runs them (``dvc status``'s answer)."""
     from dvc.repo import Repo
 
+    ran = {f for p in ([pipeline] if isinstance(pipeline, str) else pipeline) for f in RUNS.get(p, (p,))}
     lines = []
     with Repo(str(root)) as repo:
         for other in PIPELINES:
-            if other in RUNS.get(pipeline, (pipeline,)) or not (Path(repo.root_dir) / other).is_file():
+            if other in ran or not (Path(repo.root_dir) / other).is_file():
                 continue
             stale = sorted(name.partition(":")[2] or name for name in repo.status(targets=[other]))
             lines.append(f"{other}: " + (f"would rerun {', '.join(stale)} (`{COMMANDS.get(other, 'dvc repro ' + other)}`)"
@@ -526,14 +527,16 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0].strip("`: "))
     p.add_argument("--jobs", type=int, default=2, help="stages at a time (default 2)")
     p.add_argument("--out", type=Path, default=Path("reports/repro.json"), help="the record of stage times")
-    p.add_argument("--pipeline", default="dvc.yaml", choices=PIPELINES,
-                   help="the pipeline file whose stages run (default dvc.yaml: the benchmark's, with rig/dvc.yaml)")
+    p.add_argument("--pipeline", action="append", choices=PIPELINES,
+                   help="a pipeline file whose stages run (default dvc.yaml: the benchmark's, with rig/dvc.yaml); "
+                   "given twice, both files' stages in one schedule")
     p.add_argument("--skip-rig", action="store_true", help="leave the rig pipeline's stages out (the simulated "
                    "world's alone, as `make quick` runs it)")
     a = p.parse_args(argv)
     if a.jobs < 1:
         p.error(f"--jobs must be at least 1, got {a.jobs}")
-    files = RUNS.get(a.pipeline, (a.pipeline,))
+    a.pipeline = a.pipeline or ["dvc.yaml"]
+    files = list(dict.fromkeys(f for p in a.pipeline for f in RUNS.get(p, (p,))))
     locks = [lock_of(f) for f in files]
     from dvc.exceptions import DvcException
 
@@ -605,8 +608,8 @@ def main(argv: list[str] | None = None) -> int:
             print(line)
     except DvcException as e:
         print(f"the other pipelines' status is not known: {e}", file=sys.stderr)
-    command = f"python -m nanosysid.repro --jobs {a.jobs}" + (f" --pipeline {a.pipeline}" if a.pipeline != "dvc.yaml"
-                                                              else "") + (" --skip-rig" if a.skip_rig else "")
+    command = f"python -m nanosysid.repro --jobs {a.jobs}" + "".join(
+        f" --pipeline {p}" for p in a.pipeline if a.pipeline != ["dvc.yaml"]) + (" --skip-rig" if a.skip_rig else "")
     write_record(a.out, command,
                  {"jobs": a.jobs, "stages": {s: ran[s] for s in order if s in ran}, "skipped": skipped, "total_s": total})
     return 0
