@@ -37,7 +37,7 @@ print(json.dumps({"vel_dot": out[2].tolist(), "ang_vel_dot": out[3].tolist()}))
 
 
 @pytest.fixture(scope="module")
-def library(tmp_path_factory) -> Path:
+def library(tmp_path_factory) -> tuple[Path, Vehicle]:
     """A copy of the installed drone-models holding the exported section, as its README says."""
     spec = find_spec("drone_models")
     if spec is None:

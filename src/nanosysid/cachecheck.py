@@ -19,7 +19,7 @@ from pathlib import Path
 
 import yaml
 
-from nanosysid.guard import file_md5
+from nanosysid.guard import PIPELINE_FILES, file_md5
 
 __all__ = ["Damaged", "damaged", "remove", "main"]
 
@@ -37,7 +37,8 @@ class Damaged:
                 f"not to its name")
 
 
-LOCKS = ("dvc.lock", "rig/dvc.lock")  # the benchmark's pipelines' locks (the simulated world's, the real flights')
+# the benchmark's pipelines' locks (the simulated world's, the real flights')
+LOCKS = tuple((Path(f).parent / "dvc.lock").as_posix() for f in PIPELINE_FILES)
 
 
 def _objects(lock: dict) -> list[tuple[str, str, str]]:

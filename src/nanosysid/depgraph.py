@@ -27,6 +27,8 @@ from typing import Sequence
 
 import yaml
 
+from nanosysid.guard import PIPELINE_FILES
+
 __all__ = ["module_file", "direct_imports", "by_name", "imported_files", "stages", "needed_deps", "written_deps",
            "ONE_MODEL", "PIPELINES"]
 
@@ -36,7 +38,7 @@ CODE = ("src/", "stages/")  # deps entries that are code, which the graph decide
 # the project's pipelines, each with its own lock: the benchmark's on the simulated world and on the
 # real flights (both `make repro`) and the campaign's (`make campaign`); every stage runs at the
 # project's root (the others' ``wdir: ..``)
-PIPELINES = ("dvc.yaml", "rig/dvc.yaml", "campaign/dvc.yaml")
+PIPELINES = (*PIPELINE_FILES, "campaign/dvc.yaml")
 
 
 def _src(root: Path) -> Path:

@@ -36,7 +36,7 @@ import yaml
 
 from nanosysid.errors import ConfigError
 
-__all__ = ["Claim", "claim", "stage_run", "stage_name", "declared", "record_path", "file_md5", "API"]
+__all__ = ["Claim", "claim", "stage_run", "stage_name", "declared", "record_path", "file_md5", "API", "PIPELINE_FILES"]
 
 API = "python"  # the writer outside any stage
 TMP = "nanosysid-"  # our temporaries: .<name>.nanosysid-<random>.tmp / .old
@@ -133,8 +133,8 @@ def declared(cfg: Any, dvc_yaml: str | os.PathLike | Sequence[str | os.PathLike]
     With ``stage`` (the one running), the stages of another pipeline (whose command reads another
     params file than ``stage``'s: ``--params``, ``params.yaml`` without) are resolved with their
     own file's settings."""
-    return {k: ([p for p, _ in d], [p for p, _ in o])
-            for k, (d, o) in _declared(cfg, _pipeline_files(Path("."), dvc_yaml), stage).items()}
+    entries = _pipeline_stages(_pipeline_files(Path("."), dvc_yaml))
+    return {k: ([p for p, _ in d], [p for p, _ in o]) for k, (d, o) in _declared(cfg, entries, stage).items()}
 
 
 _PARAMS_ARG = re.compile(r"--params[= ](\S+)")
@@ -160,11 +160,10 @@ def stage_name(module: str, params: str | os.PathLike | None,
     return module.rpartition(".")[2]
 
 
-def _declared(cfg: Any, files: Sequence[Path], stage: str | None = None
+def _declared(cfg: Any, entries: list[tuple[str, dict, Path, Path]], stage: str | None = None
               ) -> dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]]:
     from omegaconf import OmegaConf
 
-    entries = _pipeline_stages(files)
     out: dict[str, tuple[list[tuple[str, str]], list[tuple[str, str]]]] = {}
     others: dict[Path, Any] = {}
 
@@ -240,15 +239,15 @@ def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Ite
     inputs and outputs ``dvc.yaml`` in ``root`` declares (resolved with ``cfg``; the other
     pipeline's stages with their own params file)."""
     root = Path(root)
-    layout = _declared(cfg, [root / f for f in PIPELINE_FILES], stage) if cfg is not None else {}
+    entries = _pipeline_stages([root / f for f in PIPELINE_FILES])
+    layout = _declared(cfg, entries, stage) if cfg is not None else {}
     items = [name for name in layout if name.startswith(f"{stage}@")]
     if stage not in layout and len(items) == 1:
         # a stage run once per item of a list whose command is the same for each (quality@sim)
         stage = items[0]
     deps, outs = layout.get(stage, ([], []))
     others = {_resolve(o): name for name, (_, os_) in layout.items() if name != stage for o, _ in os_}
-    lock = next((lk for n, _, _, lk in _pipeline_stages([root / f for f in PIPELINE_FILES])
-                 if n == stage.partition("@")[0]), root / "dvc.lock")
+    lock = next((lk for n, _, _, lk in entries if n == stage.partition("@")[0]), root / "dvc.lock")
     run = _Run(stage, tuple(_resolve(d) for d, _ in deps), tuple(_resolve(o) for o, _ in outs), others,
                _lock_outs(stage, lock))
     # every declared output against the inputs and the other stages' outputs before any work: a

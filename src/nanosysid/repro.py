@@ -78,6 +78,7 @@ from tqdm import tqdm  # noqa: E402
 
 from nanosysid import cachecheck  # noqa: E402
 from nanosysid.depgraph import PIPELINES  # noqa: E402
+from nanosysid.guard import PIPELINE_FILES  # noqa: E402
 from nanosysid.report.runtimes import SKIPPED, write_record  # noqa: E402
 
 __all__ = ["StageRun", "stage_graph", "critical_order", "best_order", "makespan", "run_graph", "keep_whole",
@@ -117,7 +118,7 @@ def stage_graph(root: Path = Path("."), pipeline: str | Sequence[str] = "dvc.yam
 
 # what each command runs: `make repro` the benchmark's two pipelines (the simulated world's and
 # the rig's, side by side), `make campaign` the campaign's
-RUNS = {"dvc.yaml": ("dvc.yaml", "rig/dvc.yaml"), "campaign/dvc.yaml": ("campaign/dvc.yaml",)}
+RUNS = {"dvc.yaml": PIPELINE_FILES, "campaign/dvc.yaml": ("campaign/dvc.yaml",)}
 
 
 # the command that runs each pipeline, for the line on what the others would rerun

@@ -25,12 +25,13 @@ __all__ = ["RAD_PER_RPM", "DRAG", "parameters", "toml_text"]
 RAD_PER_RPM = 2.0 * math.pi / 60.0
 
 # How a library entry enters the format's one place for an effect, the diagonal of the body-frame
-# linear drag matrix (N per m/s), from its coefficients and the vehicle. induced_drag grows with
-# the rotor speeds' sum, which the format's constant matrix cannot follow: it is taken at hover,
-# where the four rotors carry the weight.
-DRAG: dict[str, Callable[[Sequence[float], Vehicle], tuple[float, float, float]]] = {
-    "linear_drag": lambda c, vh: (-c[0], -c[0], -c[1]),
-    "induced_drag": lambda c, vh: tuple(-4.0 * vh.hover_speed * k for k in (c[0], c[0], c[1])),
+# linear drag matrix (N per m/s), from its coefficients and the vehicle, and how the file's header
+# says it is held. induced_drag grows with the rotor speeds' sum, which the format's constant
+# matrix cannot follow: it is taken at hover, where the four rotors carry the weight.
+DRAG: dict[str, tuple[Callable[[Sequence[float], Vehicle], tuple[float, float, float]], str]] = {
+    "linear_drag": (lambda c, vh: (-c[0], -c[0], -c[1]), "linear_drag"),
+    "induced_drag": (lambda c, vh: tuple(-4.0 * vh.hover_speed * k for k in (c[0], c[0], c[1])),
+                     "induced_drag (at hover)"),
 }
 
 
@@ -52,7 +53,7 @@ def parameters(vehicle: Vehicle, effects: Mapping[str, Sequence[float]]
         (held if name in DRAG else left).append(name)
         if name not in DRAG:
             continue
-        drag = [d + e for d, e in zip(drag, DRAG[name](list(coefficients), vehicle))]
+        drag = [d + e for d, e in zip(drag, DRAG[name][0](list(coefficients), vehicle))]
     inertia = [float(j) for j in vehicle.inertia]
     params = {
         "gravity_vec": [0.0, 0.0, -float(vehicle.gravity)],
@@ -94,8 +95,7 @@ def toml_text(name: str, params: Mapping[str, Any], *, held: Sequence[str], left
         "# call the dynamics with rotor_vel=None: the rotor speeds are the model's input, their dynamics",
         "# were not identified (rotor_dyn_coef zero).",
     ]
-    lines.append("# Effects in drag_matrix: " + (", ".join(
-        f"{h} (at hover)" if h == "induced_drag" else h for h in held) if held else "none") + ".")
+    lines.append("# Effects in drag_matrix: " + (", ".join(DRAG[h][1] for h in held) if held else "none") + ".")
     lines.append("# Effects the format cannot hold, left out: " + (", ".join(left) if left else "none") + ".")
     lines.append(f"[{name}]")
     lines += [f"{k} = {_value(v)}" for k, v in params.items()]
