@@ -274,11 +274,11 @@ def run_graph(upstream: Mapping[str, set[str]], run: Callable[[str], StageRun], 
 
 class _DvcStages:
     """Runs one stage as a ``dvc repro`` call in a session of its own (a terminal's Ctrl-C
-    reaches only the runner, which passes it on once: :meth:`stop`), keeping a copy of
-    ``dvc.lock`` each time a call ends with it whole."""
+    reaches only the runner, which passes it on once: :meth:`stop`), keeping a copy of each of
+    the run's locks (``dvc.lock``, ``rig/dvc.lock``) each time a call ends with it whole."""
 
-    def __init__(self, env: Mapping[str, str], log_dir: Path, locks: Sequence[tuple[Path, Path]] = ((LOCK, GOOD_LOCK),),
-                 live: Path = LIVE) -> None:
+    def __init__(self, env: Mapping[str, str], log_dir: Path,
+                 locks: Sequence[tuple[Path, Path]] = ((LOCK, GOOD_LOCK),), live: Path = LIVE) -> None:
         self.env, self.log_dir, self.locks, self.live = dict(env), log_dir, list(locks), live
         self._live: dict[subprocess.Popen, str] = {}
         self._guard = threading.Lock()
@@ -505,15 +505,12 @@ def _with_rig(upstream: dict[str, set[str]], params: Path = Path("params-rig.yam
     rig = {s for s in upstream if (s.partition(":")[2] or s).startswith(RIG_PREFIX)}
     if not rig:
         return upstream
-    if skip:
-        print("rig pipeline skipped: --skip-rig")
-        return {s: ups - rig for s, ups in upstream.items() if s not in rig}
     from omegaconf import OmegaConf
 
     from nanosysid.rig.fetch import available
 
-    ok, where = False, f"{params} is missing (make params)"
-    if params.is_file():
+    ok, where = False, "--skip-rig" if skip else f"{params} is missing (make params)"
+    if params.is_file() and not skip:
         c = OmegaConf.to_container(OmegaConf.load(params), resolve=True)["rig"]
         ok, where = available(c["manifest"], c["paths"]["raw"], local=c["local"],
                               repository=c["upstream"]["repository"], commit=c["upstream"]["commit"])
