@@ -236,8 +236,8 @@ def _lock_outs(stage: str, dvc_lock: Path) -> dict[str, str]:
 @contextlib.contextmanager
 def stage_run(stage: str, cfg: Any = None, root: str | os.PathLike = ".") -> Iterator[None]:
     """Everything written inside is written by ``stage`` (``name`` or ``name@item``), whose
-    inputs and outputs ``dvc.yaml`` in ``root`` declares (resolved with ``cfg``; the other
-    pipeline's stages with their own params file)."""
+    inputs and outputs the benchmark's pipeline files in ``root`` declare (:data:`PIPELINE_FILES`,
+    resolved with ``cfg``; the other pipeline's stages with their own params file)."""
     root = Path(root)
     entries = _pipeline_stages([root / f for f in PIPELINE_FILES])
     layout = _declared(cfg, entries, stage) if cfg is not None else {}
