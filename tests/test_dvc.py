@@ -115,8 +115,10 @@ def test_outputs_and_run_cache_round_trip_through_a_remote(dvc_repo, tmp_path):
     sh("dvc", "push", "--run-cache")
     clone = tmp_path / "clone"
     sh("git", "clone", "-q", str(dvc_repo.root), str(clone))
-    # the campaign's pipeline never ran here (no lock, nothing to pull): the benchmark's travels
-    (clone / "campaign" / "dvc.yaml").unlink()
+    # the campaign's and the rig's pipelines never ran here (no lock, nothing to pull): the
+    # simulated world's travels
+    for other in ("campaign", "rig"):
+        (clone / other / "dvc.yaml").unlink()
     sh("dvc", "pull", "--run-cache", cwd=clone)
     status = sh("dvc", "status", "dvc.yaml", cwd=clone)
     assert "up to date" in status, status
