@@ -18,9 +18,8 @@ def main(cfg: DictConfig) -> None:
     folder = Path(cfg.discover.out_dir)
     model = read_json_record(folder / "model.json", "nanosysid-discovered-1", "a discovered model", "discover")
     effects = {name: e["coefficients"] for name, e in model["effects"].items()}
-    params, held, left = drone_models.parameters(Vehicle.from_mapping(model["vehicle"]), effects)
-    if float(model.get("delay", 0.0)) > 0:
-        left.append("input_delay")
+    params, held, left = drone_models.parameters(Vehicle.from_mapping(model["vehicle"]), effects,
+                                                 delay=float(model.get("delay", 0.0)))
     text = drone_models.toml_text(str(cfg.drone_models.name), params, held=held, left=left,
                                   source=str(cfg.drone_models.source))
     out = folder / "drone_models.toml"

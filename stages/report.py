@@ -82,7 +82,7 @@ def main(cfg: DictConfig) -> None:
     markdown = tables.benchmark_markdown(rows, costs, horizons, captions)
     if rc.get("note"):  # a profile's: these are not the benchmark's figures
         title, rest = markdown.split("\n", 1)
-        markdown = f"{title}\n\n**{rc.note[0].upper()}{rc.note[1:]}.**\n{rest}"
+        markdown = f"{title}\n\n**{rc.note}**\n{rest}"
     with atomic_file(Path(rc.markdown)) as tmp:
         tmp.write_text(markdown)
     with atomic_file(Path(rc.latex)) as tmp:

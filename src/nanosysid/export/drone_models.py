@@ -35,25 +35,25 @@ DRAG: dict[str, tuple[Callable[[Sequence[float], Vehicle], tuple[float, float, f
 }
 
 
-def parameters(vehicle: Vehicle, effects: Mapping[str, Sequence[float]]
+def parameters(vehicle: Vehicle, effects: Mapping[str, Sequence[float]], delay: float = 0.0
                ) -> tuple[dict[str, Any], list[str], list[str]]:
     """The ``first_principles`` section of a vehicle and its named effects.
 
     Args:
         vehicle: The identified vehicle (k_F in N s^2/rad^2, k_M in N m s^2/rad^2).
         effects: Named effects' coefficients, as the discovered model records them.
+        delay: The rotor speeds' delay (s) the model applies (``input_delay``), which the format
+            cannot hold.
 
     Returns:
         The section's fields (plain floats and lists), the names of the effects it holds and
         of those the format cannot hold (left out).
     """
     drag = [0.0, 0.0, 0.0]
-    held, left = [], []
-    for name, coefficients in effects.items():
-        (held if name in DRAG else left).append(name)
-        if name not in DRAG:
-            continue
-        drag = [d + e for d, e in zip(drag, DRAG[name][0](list(coefficients), vehicle))]
+    held = [name for name in effects if name in DRAG]
+    left = [name for name in effects if name not in DRAG] + (["input_delay"] if delay > 0 else [])
+    for name in held:
+        drag = [d + e for d, e in zip(drag, DRAG[name][0](list(effects[name]), vehicle))]
     inertia = [float(j) for j in vehicle.inertia]
     params = {
         "gravity_vec": [0.0, 0.0, -float(vehicle.gravity)],

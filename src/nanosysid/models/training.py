@@ -83,7 +83,6 @@ class SysIdModule(pl.LightningModule):
         return {"optimizer": opt, "lr_scheduler": {"scheduler": self.scheduler(opt), "monitor": "val/loss"}}
 
 
-
 # the loggers of Lightning's notes to its user (the accelerators it found, tips for its products)
 _LIGHTNING_NOTES = ("pytorch_lightning.utilities.rank_zero", "lightning_fabric.utilities.rank_zero")
 
@@ -103,6 +102,7 @@ def _quiet_lightning() -> Iterator[None]:
     finally:
         for lg, level in zip(loggers, levels):
             lg.setLevel(level)
+
 
 def window_tensors(flights: Sequence[Flight], horizon: int, stride: int = 1, dtype=torch.float32) -> TensorDataset:
     """Windows of all flights as ``(ỹ_0 (N, 12), u (N, H, 4), ỹ_1..H (N, H, 12))``."""
