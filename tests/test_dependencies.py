@@ -160,7 +160,8 @@ def test_adding_the_readmes_example_model_reruns_its_own_stages_the_report_and_t
     # its own stages (the simulated world's and the rig's training, its evaluation), and those
     # that read every model: the reports, the recordings and the rig's comparison with the paper
     # (whose settings hold every model); no other model is trained or scored
-    assert stale == {"train@gru", "evaluate@gru", "rig/dvc.yaml:rig_train@gru", "report", "visualize",
+    assert stale == {"train@gru", "evaluate@gru", "rig/dvc.yaml:rig_train@gru", "rig/dvc.yaml:rig_evaluate@gru",
+                     "report", "visualize",
                      "rig/dvc.yaml:rig_report", "rig/dvc.yaml:rig_visualize", "rig/dvc.yaml:rig_compare"}, stale
 
 

@@ -93,7 +93,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("rig.local", TEXT_OR_NULL), ("rig.manifest", TEXT), ("rig.upstream.*", TEXT),
     ("rig.paths.*", TEXT), ("rig.logs.accel_frame", ("world", "body")), ("rig.logs.max_erpm", POSITIVE),
     ("rig.logs.pole_pairs", POSITIVE), ("rig.logs.erpm_unit", POSITIVE), ("rig.logs.keep_incomplete", FLAG),
-    ("rig.logs.aliases.*", TEXT), ("rig.logs.flights.*", TEXT), ("rig.artifacts.*", TEXT),
+    ("rig.logs.aliases.*", TEXT), ("rig.logs.flights.*", TEXT),
     # models
     ("models.*.kind", TEXT), ("models.*.artifact", TEXT), ("models.*.code", TEXT), ("models.*.checkpoint", TEXT), ("models.*.model", TEXT),
     # (``*`` spans dots: models.*.dt is also phys_res's models.phys_res.physics.dt)
