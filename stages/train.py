@@ -3,7 +3,7 @@
 from pathlib import Path
 from typing import Any
 
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 
 from nanosysid import protocol
 from nanosysid.dataio import atomic_dir, json_text
@@ -17,6 +17,8 @@ def main(cfg: DictConfig, name: str) -> dict[str, Any]:
     if m["kind"] != "learned":
         raise ConfigError(f"models.{name}: not a learned model (kind {m['kind']!r})")
     t = cfg.models[name].train
+    if cfg.trainer.get("every_model"):  # laid over every learned model's own (the quick profile's)
+        t = OmegaConf.merge(t, cfg.trainer.every_model)
     optimizer, scheduler = optimiser_parts(plain(t.optimizer), plain(t.scheduler), f"models.{name}.train")
     bench = protocol.load(cfg.paths.split, horizon=int(t.horizon))
     # the training curves are written beside the old ones and swapped in whole at the end, so

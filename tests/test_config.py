@@ -2,6 +2,7 @@
 
 import os
 import re
+import sys
 import shutil
 from pathlib import Path
 
@@ -54,6 +55,8 @@ def test_every_model_config_composes_and_predicts(name, tmp_path):
     cfg = yaml.safe_load(config.compose_text([f"+model@models.probe={name}"], conf_dir=ROOT / "conf"))
     m = cfg["models"]["probe"]
     assert m["artifact"]  # every model names what evaluate depends on
+    if m["kind"] == "external" and not (ROOT / m["artifact"]).exists():
+        pytest.skip(f"{name}: a model of the user's, fitted on {m['artifact']}, which the pipeline makes")
     # the artifacts are pipeline outputs: make them here from the config itself
     fit = Fit(coef=3.7e-8, stderr=0.0, r2=1.0, intercept=0.0, n=1)
     write_identified(tmp_path / "params.json", fit, dataclasses.replace(fit, coef=7.7e-11), [])
@@ -100,7 +103,12 @@ def test_the_schema_and_conf_name_the_same_settings():
                             ("config", ["data=sim_direct"]), ("config", ["launcher=slurm"]),
                             ("config", ["+sim.flight.gains.kp_xy=0.7", "models.residual.train.scheduler=null"]),
                             ("rig", [])):
-        for key, _ in settings.leaves(yaml.safe_load(config.compose_text(overrides, conf_dir=ROOT / "conf", root=root))):
+        composed = yaml.safe_load(config.compose_text(overrides, conf_dir=ROOT / "conf", root=root))
+        # an external model's own arguments (a user's, the README's) are its callable's to check
+        external = tuple(f"models.{n}." for n, m in composed["models"].items() if m["kind"] == "external")
+        for key, _ in settings.leaves(composed):
+            if key.startswith(external) and key.rpartition(".")[2] not in ("kind", "artifact", "code"):
+                continue
             entry = next((i for i, (pattern, _) in enumerate(settings.SCHEMA) if fnmatch.fnmatchcase(key, pattern)), None)
             assert entry is not None, f"{key}: no kind in nanosysid.settings.SCHEMA"
             used.add(entry)
@@ -162,6 +170,15 @@ def test_overrides_on_params(tmp_path):
         config.load_params(path=tmp_path / "params.yaml")
 
 
+def test_a_missing_interpolation_is_named_where_it_is_written_not_where_it_is_followed(tmp_path):
+    # a model's block that follows paths.split (the README's external model) comes first in the
+    # file: the error still names the setting the user wrote
+    own = tmp_path / "params.yaml"
+    own.write_text("models:\n  mine:\n    split: ${paths.split}\npaths:\n  split: ${nope.key}\n")
+    with pytest.raises(config.ConfigError, match=r"params\.yaml: paths\.split: Interpolation key 'nope\.key' not found"):
+        config.load_params(path=own)
+
+
 def test_a_setting_derived_from_another_follows_its_override(tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT)
     out = tmp_path / "fit"
@@ -206,6 +223,24 @@ def readme_blocks(section: str) -> list[str]:
     return re.findall(r"```\w*\n(.*?)```", text[start:end], flags=re.S)
 
 
+def readme_model() -> tuple[str, list[str]]:
+    """The README's new network (``gru``) and its section's code blocks, renamed where the tree
+    holds a model or a network of that name already (a user's that followed the README)."""
+    import itertools
+
+    import nanosysid.models.components as components
+
+    blocks = readme_blocks("## Your own model")
+    taken = {p.stem for p in (ROOT / "conf" / "model").glob("*.yaml")} | {
+        p.stem for d in components.__path__ for p in Path(d).glob("*.py")}
+    name = "gru"
+    if name in taken:
+        new = next(f"{name}{i}" for i in itertools.count(2) if f"{name}{i}" not in taken)
+        blocks = [re.sub(rf"\b{name}\b", new, b) for b in blocks]
+        name = new
+    return name, blocks
+
+
 def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeypatch):
     """The README's GRU: its component, its config file and the config's list of models are
     all it takes to train it, score it and check its checkpoint."""
@@ -213,13 +248,13 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     from nanosysid.dataio import write_flight_csv
     from stages import evaluate, train
 
-    component, model_yaml, config_lines, _ = readme_blocks("## Your own model")
+    gru, (component, model_yaml, config_lines, _) = readme_model()
     (tmp_path / "networks").mkdir()
-    (tmp_path / "networks" / "gru.py").write_text(component)
+    (tmp_path / "networks" / f"{gru}.py").write_text(component)
     monkeypatch.setattr(components, "__path__", [*components.__path__, str(tmp_path / "networks")])
     conf = tmp_path / "conf"
     shutil.copytree(ROOT / "conf", conf)
-    (conf / "model" / "gru.yaml").write_text(model_yaml)
+    (conf / "model" / f"{gru}.yaml").write_text(model_yaml)
     defaults_line, learned_line = [line for line in config_lines.splitlines() if line.strip()]
     text = (conf / "config.yaml").read_text()
     text = text.replace("  - _self_\n", f"{defaults_line}\n  - _self_\n", 1)
@@ -233,17 +268,17 @@ def test_adding_a_model_takes_the_three_files_the_readme_shows(tmp_path, monkeyp
     for f, part in zip(made, ("train", "train", "test")):
         write_flight_csv(f, split / part / f"{f.name}.csv")
     overrides = [f"paths.split={split}", f"paths.train_logs={tmp_path / 'logs'}", f"paths.eval={tmp_path / 'eval'}",
-                 f"models.gru.checkpoint={tmp_path / 'gru.pt'}", "models.gru.train.epochs=1",
-                 "models.gru.train.stride=20", "eval.horizon=20", "models.gru.train.horizon=20"]
+                 f"models.{gru}.checkpoint={tmp_path / 'gru.pt'}", f"models.{gru}.train.epochs=1",
+                 f"models.{gru}.train.stride=20", "eval.horizon=20", f"models.{gru}.train.horizon=20"]
     cfg = config.load_params(overrides, path=params)
-    assert "gru" in cfg.learned and cfg.models.gru.train.optimizer.lr == 3.0e-3
-    assert cfg.models.gru.train.batch_size == cfg.models.residual.train.batch_size  # the shared settings
-    summary = train.main(cfg, "gru")
+    assert gru in cfg.learned and cfg.models[gru].train.optimizer.lr == 3.0e-3
+    assert cfg.models[gru].train.batch_size == cfg.models.residual.train.batch_size  # the shared settings
+    summary = train.main(cfg, gru)
     assert summary["epochs"] == 1
-    scores = evaluate.main(cfg, "gru")
+    scores = evaluate.main(cfg, gru)
     assert scores.n_windows == 300 - 20 and all(np.isfinite(v) for v in scores.simerr.values())
     raw = torch.load(tmp_path / "gru.pt", weights_only=True)
-    assert raw["network"] == {"name": "gru", "options": {"hidden": 48}}
+    assert raw["network"] == {"name": gru, "options": {"hidden": 48}}
 
 
 def test_a_model_that_is_no_network_enters_through_its_config(tmp_path, monkeypatch):
@@ -261,6 +296,8 @@ def test_a_model_that_is_no_network_enters_through_its_config(tmp_path, monkeypa
         "    def predict(y0, u):\n        return np.repeat(np.asarray(y0)[:, None, :], u.shape[1], axis=1)\n"
         "    return predict\n")
     monkeypatch.syspath_prepend(str(tmp_path))
+    for module in ("mymodels", "mymodels.arx"):  # a user's own, imported by another test
+        monkeypatch.delitem(sys.modules, module, raising=False)
     options = yaml.safe_load(block.replace("${paths.split}", str(tmp_path / "split")))
     flights = synthetic.synthetic_flights(["melon_x_run1"], 200, seed=3)
     own = protocol.evaluate(build_from_options(options), flights, horizon=10)

@@ -111,6 +111,8 @@ def copied(tmp_path: Path, env: dict):
     import shutil
     import subprocess
 
+    from dvcenv import copy_model_code
+
     repo = tmp_path / "repo"
     repo.mkdir()
     for item in ("dvc.yaml", "dvc.lock", "rig", "campaign", "params.yaml", "params-rig.yaml", "conf", "stages", "src",
@@ -118,6 +120,7 @@ def copied(tmp_path: Path, env: dict):
         (shutil.copytree if (ROOT / item).is_dir() else shutil.copy)(ROOT / item, repo / item,
                                                                       **({"ignore": shutil.ignore_patterns("__pycache__")}
                                                                          if (ROOT / item).is_dir() else {}))
+    copy_model_code(ROOT, repo)
     (repo / ".dvc").mkdir()
     shutil.copy(ROOT / ".dvc" / "config", repo / ".dvc" / "config")
 
@@ -134,14 +137,14 @@ def test_adding_the_readmes_example_model_reruns_its_own_stages_the_report_and_t
     import json
 
     from nanosysid import config
-    from test_config import readme_blocks
+    from test_config import readme_model
 
     repo, sh = copied(tmp_path, venv_env)
     before = json.loads(sh("dvc", "status", "--json"))
     # the README's three files, then `make params` and `make deps`
-    component, model_yaml, config_lines, _ = readme_blocks("## Your own model")
-    (repo / "src/nanosysid/models/components/gru.py").write_text(component)
-    (repo / "conf/model/gru.yaml").write_text(model_yaml)
+    gru, (component, model_yaml, config_lines, _) = readme_model()
+    (repo / f"src/nanosysid/models/components/{gru}.py").write_text(component)
+    (repo / f"conf/model/{gru}.yaml").write_text(model_yaml)
     defaults_line, learned_line = [line for line in config_lines.splitlines() if line.strip()]
     text = (repo / "conf/config.yaml").read_text()
     text = text.replace("  - _self_\n", f"{defaults_line}\n  - _self_\n", 1)
@@ -160,9 +163,38 @@ def test_adding_the_readmes_example_model_reruns_its_own_stages_the_report_and_t
     # its own stages (the simulated world's and the rig's training, its evaluation), and those
     # that read every model: the reports, the recordings and the rig's comparison with the paper
     # (whose settings hold every model); no other model is trained or scored
-    assert stale == {"train@gru", "evaluate@gru", "rig/dvc.yaml:rig_train@gru", "rig/dvc.yaml:rig_evaluate@gru",
+    assert stale == {f"train@{gru}", f"evaluate@{gru}", f"rig/dvc.yaml:rig_train@{gru}", f"rig/dvc.yaml:rig_evaluate@{gru}",
                      "report", "visualize",
                      "rig/dvc.yaml:rig_report", "rig/dvc.yaml:rig_visualize", "rig/dvc.yaml:rig_compare"}, stale
+
+
+@pytest.mark.parametrize("params, source", [("params.yaml", "dvc.yaml"), ("params-rig.yaml", "rig/dvc.yaml")])
+def test_an_ablation_reruns_stages_of_the_source_whose_settings_it_changes_only(tmp_path, venv_env, params, source):
+    """`dvc exp run -S <params file>:models.physics.substeps=4` (the README's ablation, on either
+    source): the physics model's own evaluation of that source goes out of date, and no stage of
+    the other source's pipeline."""
+    import json
+
+    repo, sh = copied(tmp_path, venv_env)
+    path = repo / params
+    cfg = yaml.safe_load(path.read_text())
+    cfg["models"]["physics"]["substeps"] = 4
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    status = json.loads(sh("dvc", "status", "--json"))
+    stale = {name for name, entries in status.items() for e in entries
+             if isinstance(e, dict) and isinstance(e.get("changed deps", {}).get(params), dict)}
+    own = {name for name in stale if (name.partition(":")[0] if ":" in name else "dvc.yaml") == source}
+    assert stale == own, f"an edit of {params} puts another pipeline's stages out of date: {sorted(stale - own)}"
+    evaluate = "evaluate@physics" if source == "dvc.yaml" else "rig/dvc.yaml:rig_evaluate@physics"
+    assert evaluate in stale and not any("train@" in name or "evaluate@lstm" in name for name in stale), stale
+    if source == "rig/dvc.yaml":
+        # the guide's ablation of the rig names these very stages (every one reads the changed setting)
+        import docpages
+
+        line = next(x for x in docpages.text().splitlines()
+                    if x.startswith("dvc exp run rig/dvc.yaml -S params-rig.yaml:models.physics.substeps=4"))
+        claimed = {f"rig/dvc.yaml:{s}" for s in line.split("reruns", 1)[1].strip().split(", ")}
+        assert claimed == stale, (claimed, stale)
 
 
 @pytest.mark.parametrize("module", ["src/nanosysid/preprocess/sync.py", "src/nanosysid/effects.py",

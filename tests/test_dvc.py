@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from dvcenv import dvc_env
+from dvcenv import copy_model_code, dvc_env
 from nanosysid.errors import ToolchainError
 from nanosysid.export.mcu import require_toolchain
 from test_pipeline import TINY_SIM
@@ -35,6 +35,7 @@ class DvcRepo:
                 shutil.copytree(src, root / item)
             else:
                 shutil.copy(src, root / item)
+        copy_model_code(ROOT, root)
         shutil.rmtree(root / ".dvc" / "tmp", ignore_errors=True)
         shutil.rmtree(root / ".dvc" / "cache", ignore_errors=True)
         (root / ".dvc" / "config.local").unlink(missing_ok=True)
@@ -207,7 +208,7 @@ def test_a_users_own_flights_run_through_one_experiment_without_the_simulators_s
     (own / "manifest.csv").write_text(manifest + "yaw.csv,yawsweep,1\n")
     # without the microcontroller (export.mcu.enabled=false), as a user without the ARM toolchain
     # runs it; one epoch, and discovery without its leave-one-flight-out folds, to keep it short
-    quick = [a for m in ("residual", "phys_res", "lstm") for a in ("-S", f"models.{m}.train.epochs=1")]
+    quick = ["-S", "trainer.every_model.epochs=1"]
     out = user.sh("dvc", "exp", "run", *SMALL, *quick, "-S", "discover.flights_out=false", "-S", "discover.sindy=false",
                   "-S", "data=csv", "-S", "data.flights_dir=own", "-S", "split.train=[loop,figure8]",
                   "-S", "split.test=[spiral]", "-S", "export.mcu.enabled=false", "-n", "own")

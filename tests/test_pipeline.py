@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from nanosysid import config
 from nanosysid.dataio import read_flight_csv
@@ -35,11 +36,22 @@ TINY_SIM = [
     # blocks longer than the horizon: discovery scores its choices on windows inside one block
     "discover.block=0.6",
     "visualize.stride=40",
-] + [f"models.{m}.train.{k}" for m in ("residual", "phys_res", "lstm")
-     # the eager physics base: compiling it costs more than two epochs of it (the compiled one is
-     # checked against it in tests/test_learned.py)
-     for k in ("epochs=2", "stride=10", "val_runs=[2]", "compile=false")]
+    # every learned model: two epochs, and the eager physics base (compiling it costs more than
+    # two epochs of it; the compiled one is checked against it in tests/test_learned.py)
+    "trainer.every_model={epochs: 2, stride: 10, val_runs: [2], compile: false}",
+]
 LEARNED = ("residual", "phys_res", "lstm")
+# the product's models: a user's own in conf/model/ (the README's steps) are no part of this pipeline
+MODELS = ("naive", "physics", "physics_full", "oracle", *LEARNED, "discovered")
+
+
+def _product_models(params: Path) -> None:
+    """``params`` without models other than the product's (and their training and export)."""
+    cfg = yaml.safe_load(params.read_text())
+    for block in (cfg["models"], cfg["learned"], cfg["export"]["models"]):
+        for name in [n for n in block if n not in MODELS]:
+            del block[name]
+    params.write_text(yaml.safe_dump(cfg, sort_keys=False))
 
 
 def tiny_args(root: Path, *extra: str) -> list[str]:
@@ -48,6 +60,7 @@ def tiny_args(root: Path, *extra: str) -> list[str]:
     params = root / "params.yaml"
     if not params.exists():
         config.compose([], out=params, conf_dir=ROOT / "conf")
+        _product_models(params)
     return [
         "--params", str(params),
         f"sim.out_dir={root / 'raw'}",

@@ -355,6 +355,9 @@ RUN_BY = {
                                "_simulators_stages",
     "dvc exp run -S models.physics.substeps=4": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed"
                                                 "_and_share_the_run_cache",
+    # (what it reruns, by `dvc status`: the tests have no real flights to run it on)
+    "dvc exp run rig/dvc.yaml -S params-rig.yaml:": "tests/test_dependencies.py::test_an_ablation_reruns_stages_of_the"
+                                                   "_source_whose_settings_it_changes_only",
     "dvc exp show": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache",
     "dvc exp run --queue": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache",
     "dvc queue start": "tests/test_dvc.py::test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache",

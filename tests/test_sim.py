@@ -318,6 +318,12 @@ def test_the_configured_world_is_the_records_defaults():
     assert sim.DEFAULT_WORLD == {e.name: e.default for e in fx.RECORDS if e.default}
 
 
+def test_a_world_is_named_by_the_effects_it_has_on():
+    # what an error about a world says: its effects that are on, by name, and their strengths
+    assert str(fx.World({"turbulence": 0.5, "com_offset": 2.0, "thrust_lag": 0})) == "com_offset 2, turbulence 0.5"
+    assert str(fx.World({"thrust_lag": 0.0})) == str(fx.World({})) == "no effect"
+
+
 def _lift(c, body, omega, omega_dot):
     return torch.nn.functional.pad(c["lift"].expand(*body.x.shape[:-1], 1), (2, 3))
 

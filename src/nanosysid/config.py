@@ -190,19 +190,29 @@ def load_params(overrides: Sequence[str] = (), *, path: Path | str = PARAMS) -> 
     return cfg
 
 
-def _unresolved(cfg: DictConfig, prefix: str = "") -> str | None:
-    """The first key of ``cfg`` whose value does not resolve (an interpolation of a missing key)."""
-    for key in cfg.keys():
-        full = f"{prefix}{key}"
-        try:
-            value = cfg[key]
-        except OmegaConfBaseException:
-            return full
-        if isinstance(value, DictConfig):
-            inner = _unresolved(value, full + ".")
-            if inner:
-                return inner
-    return None
+def _unresolved(cfg: DictConfig) -> str | None:
+    """The key of ``cfg`` whose own value names what is missing: of the keys that do not resolve,
+    the first whose interpolations name no other such key (``paths.split=${nope.key}``, not a
+    model's ``split: ${paths.split}`` that only follows it)."""
+    failing: list[str] = []
+
+    def walk(node: DictConfig, prefix: str) -> None:
+        for key in node.keys():
+            full = f"{prefix}{key}"
+            try:
+                value = node[key]
+            except OmegaConfBaseException:
+                failing.append(full)
+                continue
+            if isinstance(value, DictConfig):
+                walk(value, full + ".")
+
+    walk(cfg, "")
+    raw = dict(leaves(OmegaConf.to_container(cfg, resolve=False)))
+    for key in failing:
+        if not set(re.findall(r"\$\{([^}]+)\}", str(raw.get(key, "")))) & set(failing):
+            return key
+    return failing[0] if failing else None
 
 
 def _root_of(path: Path) -> str:

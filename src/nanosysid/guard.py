@@ -130,9 +130,9 @@ def declared(cfg: Any, dvc_yaml: str | os.PathLike | Sequence[str | os.PathLike]
     """Every stage of ``dvc_yaml`` (``name`` or ``name@item``; by default the benchmark's pipeline
     files, :data:`PIPELINE_FILES`): its dependencies and outputs, the
     paths resolved with ``cfg`` (the run's settings, overrides included). Empty without the file.
-    With ``stage`` (the one running), the stages of another pipeline (whose command reads another
-    params file than ``stage``'s: ``--params``, ``params.yaml`` without) are resolved with their
-    own file's settings."""
+    The stages of another pipeline (whose command reads another params file than ``stage``'s, or
+    than ``params.yaml`` without ``stage``: ``--params``) are resolved with their own file's
+    settings, as DVC resolves each pipeline file with its own ``vars``."""
     entries = _pipeline_stages(_pipeline_files(Path("."), dvc_yaml))
     return {k: ([p for p, _ in d], [p for p, _ in o]) for k, (d, o) in _declared(cfg, entries, stage).items()}
 
@@ -170,8 +170,11 @@ def _declared(cfg: Any, entries: list[tuple[str, dict, Path, Path]], stage: str 
     def params_file(st: dict, wdir: Path) -> Path:
         return _resolve(wdir / _params_of(str(st.get("do", st).get("cmd", ""))))
 
-    base = None if stage is None else next(((st, w) for n, st, w, _ in entries if n == stage.partition("@")[0]), None)
-    run_params = None if base is None else params_file(*base)
+    if stage is None:  # cfg is params.yaml's
+        run_params = _resolve(Path(DEFAULT_PARAMS))
+    else:
+        base = next(((st, w) for n, st, w, _ in entries if n == stage.partition("@")[0]), None)
+        run_params = None if base is None else params_file(*base)
     for name, st, wdir, _ in entries:
         own = params_file(st, wdir)
         if run_params is not None and own != run_params:

@@ -29,7 +29,7 @@ from typing import Any, Callable, Iterator
 
 from omegaconf import OmegaConf
 
-__all__ = ["CONF", "SCHEMA", "LENGTHS", "defaults", "configured", "kind_of", "fits", "describe", "check_value",
+__all__ = ["CONF", "SCHEMA", "ALIASES", "LENGTHS", "defaults", "configured", "kind_of", "fits", "describe", "check_value",
            "leaves", "SOURCES"]
 
 # conf/ of the project this library belongs to (the source checkout that `make venv` installs)
@@ -106,6 +106,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("models.*.train.optimizer.lr", POSITIVE), ("models.*.train.val_runs", COUNT),
     ("models.*.train.optimizer.*", FREE), ("models.*.train.scheduler", FREE), ("models.*.train.scheduler.*", FREE),
     ("learned.*", TEXT), ("trainer.devices", COUNT_OR_AUTO),
+    ("trainer.every_model", FREE),  # null; its keys are a train block's (:data:`ALIASES`)
     ("trainer.accelerator", ("auto", "cpu", "gpu", "cuda", "mps")),  # Lightning's
     # evaluation, identification, reports
     ("eval.horizon", COUNT), ("eval.batch_size", COUNT), ("eval.table_horizons", COUNT),
@@ -154,8 +155,16 @@ LENGTHS: list[tuple[str, tuple[int, ...], str]] = [
 ]
 
 
+# settings whose keys are another block's: the kind of ``trainer.every_model.epochs`` is that of
+# any learned model's ``models.<name>.train.epochs``
+ALIASES = {"trainer.every_model.": "models.*.train."}
+
+
 def kind_of(key: str) -> str | tuple[str, ...] | None:
     """The schema's kind of the setting ``key`` (dotted), or None where no entry matches."""
+    for alias, block in ALIASES.items():
+        if key.startswith(alias):
+            key = block.replace("*", "_") + key[len(alias):]
     return next((kind for pattern, kind in SCHEMA if fnmatch.fnmatchcase(key, pattern)), None)
 
 

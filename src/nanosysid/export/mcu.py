@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from nanosysid.errors import ToolchainError
+from nanosysid.export import CLOCK_HZ, MAX_CYCLES_PER_INSTRUCTION
 from nanosysid.export.cgen import flit
 from nanosysid.export.csource import CModel
 
@@ -27,12 +28,6 @@ __all__ = ["ToolchainError", "require_toolchain", "range_relative_diff", "write_
            "CFLAGS", "CLOCK_HZ", "INSTALL_HINT", "MAX_CYCLES_PER_INSTRUCTION", "graph_operators"]
 
 FIRMWARE = Path(__file__).with_name("firmware")
-CLOCK_HZ = 168e6  # STM32F405
-# QEMU has no timing model of the Cortex-M4 (pipeline, flash wait states): cycles are not counted,
-# they lie between one an instruction and this many: 14 for VDIV.F32 and VSQRT.F32, the longest
-# (Cortex-M4 TRM, table 7-1 of the FPU's instruction timing), plus the 5 flash wait states of the
-# STM32F405 at 168 MHz (RM0090, table 10) where the ART accelerator's cache misses
-MAX_CYCLES_PER_INSTRUCTION = 19
 # fused multiply-adds (vfma) as GNU C would contract them; -std=c99 alone turns contraction off
 CFLAGS = ["-mcpu=cortex-m4", "-mthumb", "-mfloat-abi=hard", "-mfpu=fpv4-sp-d16", "-O2", "-std=c99", "-ffp-contract=fast",
           "-Wall", "-Wextra", "-Werror", "-ffunction-sections", "-fdata-sections"]

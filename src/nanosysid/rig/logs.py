@@ -193,6 +193,12 @@ def trajectory_segment(df: pd.DataFrame, where: str) -> tuple[int, int, bool]:
     return start, stop, complete
 
 
+def _lateral_share(body: np.ndarray) -> float:
+    """RMS of a body-frame vector's x and y components over the RMS of its size; ``body`` (N, 3)."""
+    size = float(np.sqrt(np.mean((body ** 2).sum(1))))
+    return float(np.sqrt(np.mean(body[:, 0] ** 2 + body[:, 1] ** 2))) / max(size, 1e-12)
+
+
 def accel_frame_check(accel: np.ndarray, q: np.ndarray, frame: str, where: str) -> dict:
     """The lateral share of the specific force read in each frame (RMS of the two components
     across the thrust axis over the RMS magnitude); the configured ``frame`` must be the one in
@@ -202,15 +208,12 @@ def accel_frame_check(accel: np.ndarray, q: np.ndarray, frame: str, where: str) 
         DataError: the data say the other frame.
     """
     R = Rotation.from_quat(q)
-    as_body = {"body": accel, "world": R.inv().apply(accel)}
-    share = {f: float(np.sqrt(np.mean(b[:, 0] ** 2 + b[:, 1] ** 2)) / max(float(np.sqrt(np.mean((b ** 2).sum(1)))), 1e-12))
-             for f, b in as_body.items()}
+    share = {"body": _lateral_share(accel), "world": _lateral_share(R.inv().apply(accel))}
     other = "body" if frame == "world" else "world"
     if share[other] < share[frame] and frame == "world":
         # a quaternion in w, x, y, z order turns the world's specific force off the thrust axis in
         # either reading; read in that order it lies along it again
-        b = Rotation.from_quat(q[:, [1, 2, 3, 0]]).inv().apply(accel)
-        wfirst = float(np.sqrt(np.mean(b[:, 0] ** 2 + b[:, 1] ** 2)) / max(float(np.sqrt(np.mean((b ** 2).sum(1)))), 1e-12))
+        wfirst = _lateral_share(Rotation.from_quat(q[:, [1, 2, 3, 0]]).inv().apply(accel))
         if wfirst < min(share.values()) / 2:
             raise DataError(f"{where}: columns 'qx qy qz qw': the world's specific force turned to the body by this "
                             f"attitude has a lateral part of {share[frame]:.0%} of its size, read as w, x, y, z "

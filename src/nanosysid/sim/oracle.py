@@ -108,8 +108,7 @@ class Oracle:
         bad = ~np.isfinite(pred)
         if bad.any():
             i, h, _ = np.argwhere(bad)[0]
-            world = ", ".join(f"{k} {v:g}" for k, v in sorted(self.world.strengths.items()) if v) or "no effect"
-            raise PredictionError(f"the oracle's world ({world}) predicts values that are not numbers from window {i}, "
+            raise PredictionError(f"the oracle's world ({self.world}) predicts values that are not numbers from window {i}, "
                                   f"step {h + 1}: the vehicle cannot fly these strengths")
         return pred
 

@@ -444,6 +444,11 @@ class World:
     def s(self, name: str) -> float:
         return float(self.strengths.get(name, 0.0))
 
+    def __str__(self) -> str:
+        """The effects that are on and their strengths (``drag 1.5, thrust_lag 0.8``), as errors name
+        a world."""
+        return ", ".join(f"{k} {v:g}" for k, v in sorted(self.strengths.items()) if v) or "no effect"
+
     @property
     def timed(self) -> bool:
         """Whether an effect of time (a random realisation per flight) is on."""
