@@ -296,7 +296,8 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
     try:
         ident, nominal = _identified(world, flights, setup)
     except UserError as e:  # what the identify stage would refuse, named with the world that made it
-        raise type(e)(f"world {world.index} ({nature.World(world.effects)}): its flights cannot be identified: {e}") from None
+        raise type(e)(f"world {world.index} ({nature.World(world.effects)}): its flights cannot be identified: "
+                      f"{e}") from None
     extra = world.extra_wrench(setup.vehicle)
     oracle = sim.oracle(world.effects, vehicle=setup.vehicle, seed=world.seed, extra_wrench=extra,
                         compile=setup.sim.compile)

@@ -29,8 +29,8 @@ from typing import Any, Callable, Iterator
 
 from omegaconf import OmegaConf
 
-__all__ = ["CONF", "SCHEMA", "ALIASES", "LENGTHS", "defaults", "configured", "kind_of", "fits", "describe", "check_value",
-           "leaves", "SOURCES"]
+__all__ = ["CONF", "SCHEMA", "ALIASES", "LENGTHS", "defaults", "configured", "kind_of", "fits", "describe",
+           "check_value", "leaves", "SOURCES"]
 
 # conf/ of the project this library belongs to (the source checkout that `make venv` installs)
 CONF = Path(__file__).resolve().parents[2] / "conf"

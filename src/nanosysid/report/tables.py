@@ -276,8 +276,8 @@ def benchmark_markdown(rows: Mapping[str, Scores], costs: Mapping[str, Mapping[s
         "the time they take at 168 MHz, and the flash and RAM of the step are given beside the paper's T_inf, "
         "measured on a physical STM32 MCU. The emulator has no timing model of the Cortex-M4 (its pipeline, "
         "the flash's wait states), so cycles are not counted: the time lies between one cycle an instruction "
-        f"and {MAX_CYCLES_PER_INSTRUCTION} (VDIV.F32 and VSQRT.F32 take 14, and a miss of the flash's cache adds 5 "
-        "wait states). The "
+        f"and {MAX_CYCLES_PER_INSTRUCTION} (VDIV.F32 and VSQRT.F32 take 14, and a miss of the flash's cache "
+        "adds 5 wait states). The "
         "ONNX operators are the exported graph's, constants left out.", "",
         cost_table_md(costs), *_paper_time_lines(costs),
         "## Figures", "",

@@ -108,8 +108,8 @@ class Oracle:
         bad = ~np.isfinite(pred)
         if bad.any():
             i, h, _ = np.argwhere(bad)[0]
-            raise PredictionError(f"the oracle's world ({self.world}) predicts values that are not numbers from window {i}, "
-                                  f"step {h + 1}: the vehicle cannot fly these strengths")
+            raise PredictionError(f"the oracle's world ({self.world}) predicts values that are not numbers from "
+                                  f"window {i}, step {h + 1}: the vehicle cannot fly these strengths")
         return pred
 
     def _rollout(self, nature: Nature, y, om, om_dot, t):

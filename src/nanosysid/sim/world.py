@@ -445,7 +445,7 @@ class World:
         return float(self.strengths.get(name, 0.0))
 
     def __str__(self) -> str:
-        """The effects that are on and their strengths (``drag 1.5, thrust_lag 0.8``), as errors name
+        """The effects that are on and their strengths (``body_drag 1.5, thrust_lag 0.8``), as errors name
         a world."""
         return ", ".join(f"{k} {v:g}" for k, v in sorted(self.strengths.items()) if v) or "no effect"
 
