@@ -131,22 +131,28 @@ def heldout_simerr(models: Sequence[AugmentedPredictor], flights: Sequence[Fligh
                    horizon: int, batch_size: int) -> dict[str, float]:
     """SimErr per quantity (the MAE summed over h = 1..horizon, pooled over windows) of
     ``models[k]`` rolled out from the starts ``starts[flight][k]`` of each flight; infinite where a
-    rollout leaves the finite states or the unit quaternions."""
+    rollout leaves the finite states or the unit quaternions.
+
+    Each fold's windows of every flight are rolled out together, in batches of ``batch_size``: a
+    rollout's cost is its steps' overhead far more than its windows."""
+    per_flight = [protocol.windows(f, horizon) for f in flights]
     sums, n = {q: 0.0 for q in QUANTITIES}, 0
-    for f, per_fold in zip(flights, starts):
-        y0, u, y = protocol.windows(f, horizon)
-        for predict, s in zip(models, per_fold):
-            for b in range(0, len(s), batch_size):
-                idx = s[b:b + batch_size]
-                with threads(LOOP_THREADS):
-                    pred = predict(y0[idx], u[idx])
-                try:
-                    protocol.check_predictions(pred, f"flight {f.name}")
-                except PredictionError:
-                    return {q: math.inf for q in QUANTITIES}
-                for q, e in metrics.errors(y[idx], pred).items():
-                    sums[q] += float(e.sum())
-                n += len(idx)
+    for k, predict in enumerate(models):
+        picked = [(w, s[k]) for w, s in zip(per_flight, starts) if len(s[k])]
+        if not picked:
+            continue
+        y0, u, y = (np.concatenate([w[i][s] for w, s in picked]) for i in range(3))
+        for b in range(0, len(y0), batch_size):
+            part = slice(b, b + batch_size)
+            with threads(LOOP_THREADS):
+                pred = predict(y0[part], u[part])
+            try:
+                protocol.check_predictions(pred, f"fold {k}'s held-out windows")
+            except PredictionError:
+                return {q: math.inf for q in QUANTITIES}
+            for q, e in metrics.errors(y[part], pred).items():
+                sums[q] += float(e.sum())
+            n += len(pred)
     if n == 0:
         raise DataError("discover: no window of the training flights lies inside one block; give longer flights "
                         "or a longer discover.block than the horizon")
