@@ -458,7 +458,9 @@ def _add_noise(y, u, acc, n: NoiseConfig, rng: np.random.Generator, dt: float):
         y[:, 3:6] += velocity_drift(T, n, dt, rng)
     y[:, 6:10] = perturb_attitude(y[:, 6:10], n.att, rng)
     y[:, 10:13] += rng.normal(scale=n.gyro, size=(T, 3))
-    u = u + rng.normal(scale=n.rotor, size=u.shape)
+    # a rotor's speed sensor reads a magnitude: a rotor at rest (a slow lag's inverse can ask one to
+    # stop) reads 0, never below
+    u = np.maximum(u + rng.normal(scale=n.rotor, size=u.shape), 0.0)
     acc = acc + rng.normal(scale=n.accel, size=acc.shape)
     return y, u, acc
 
