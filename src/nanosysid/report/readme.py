@@ -188,8 +188,8 @@ def start_section(repro_json: Path, campaign_json: Path | None = None) -> str:
              f"({rec['total_s'] / 60:.0f} min) on {_machine(rec['machine'])} ({Path(repro_json).as_posix()})."]
     if campaign_json is not None and Path(campaign_json).exists():
         camp = json.loads(Path(campaign_json).read_text())
-        lines[-1] += (f" `make campaign` took {camp['total_s']:g} s ({camp['total_s'] / 60:.0f} min) "
-                      f"({Path(campaign_json).as_posix()}).")
+        lines[-1] += (f" `make campaign` took {camp['total_s']:g} s ({camp['total_s'] / 60:.0f} min; "
+                      f"{Path(campaign_json).as_posix()}).")
     return "\n".join([*lines, "", START_END])
 
 
