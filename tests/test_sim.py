@@ -605,7 +605,8 @@ def test_a_rotor_brought_to_rest_records_no_speed_below_zero():
     # it is; the flight is then one the protocol scores
     from nanosysid.campaign import short_flights_config
 
-    spec = sim.FlightSpec(trajectory="square", run=1, effects={"body_drag": 0.45, "thrust_lag": 2.19}, seed=172656924)
+    spec = sim.FlightSpec(trajectory="square", run=1, effects={"body_drag": 0.45, "thrust_lag": 2.19},
+                          seed=172656924)
     (f,) = sim.simulate_flights([spec], cfg=short_flights_config(20.0), progress=False)
     at_rest = f.u.mean(axis=1) < 100
     assert at_rest.sum() >= 5 and f.u.min() == 0.0
