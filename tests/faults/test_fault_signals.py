@@ -61,6 +61,11 @@ CASES = [(sig, mode) for sig in (signal.SIGTERM, signal.SIGINT) for mode in ("fi
     (signal.SIGHUP, "train")]
 
 
+def _as_from_a_terminal() -> None:
+    for s in (signal.SIGINT, signal.SIGHUP):
+        signal.signal(s, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("sig,mode", CASES, ids=[f"{s.name} while writing a {m}" for s, m in CASES])
 def test_a_stage_stopped_by_a_signal_exits_non_zero_and_writes_nothing(tmp_path, params, sig, mode):
     script = tmp_path / "stage.py"
@@ -73,11 +78,12 @@ def test_a_stage_stopped_by_a_signal_exits_non_zero_and_writes_nothing(tmp_path,
                        check=True, capture_output=True)
         assert out.read_text() == '{"last": 1}'
 
-    # as from a terminal: SIGINT at its default (pytest-xdist's workers, and jobs started in the
-    # background, ignore it, and a stage leaves an ignored signal ignored)
+    # as from a terminal: SIGINT and SIGHUP at their defaults (pytest-xdist's workers and jobs
+    # started in the background ignore SIGINT, a suite run under nohup SIGHUP, and a stage leaves
+    # an ignored signal ignored)
     p = subprocess.Popen([sys.executable, str(script), mode, str(out), str(ready), str(params)], cwd=tmp_path,
                          env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+                         preexec_fn=_as_from_a_terminal)
     deadline = time.monotonic() + 120
     while not ready.exists() and p.poll() is None and time.monotonic() < deadline:
         time.sleep(0.05)
