@@ -66,7 +66,8 @@ def test_readme_start_time_is_the_repro_record(monkeypatch):
     monkeypatch.chdir(ROOT)
     text = (ROOT / "README.md").read_text()
     part = text[text.index(readme.START_BEGIN):text.index(readme.START_END) + len(readme.START_END)]
-    assert part == readme.start_section(Path("reports/repro.json"), Path("reports/campaign-repro.json"))
+    assert part == readme.start_section(Path("reports/repro.json"), Path("reports/campaign-repro.json"),
+                                        Path("reports/repro-sim.json"))
 
 
 def test_readme_shows_the_results_the_lock_file_records():

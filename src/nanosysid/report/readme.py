@@ -180,12 +180,19 @@ def update_headline(readme: Path, paper_md: Path) -> bool | None:
     return _replace(readme, HEADLINE_BEGIN, HEADLINE_END, headline_section(paper_md))
 
 
-def start_section(repro_json: Path, campaign_json: Path | None = None) -> str:
-    """How long ``make repro`` (and ``make campaign``) took, from their last records."""
+def start_section(repro_json: Path, campaign_json: Path | None = None, sim_json: Path | None = None) -> str:
+    """How long ``make repro`` (and ``make campaign``) took, from their last records; ``sim_json``:
+    a record of ``make repro`` without the real flights (the simulated world's pipeline alone)."""
     rec = json.loads(Path(repro_json).read_text())
     ran = "every stage" if not rec["skipped"] else f"{len(rec['stages'])} stages ({len(rec['skipped'])} skipped or cached)"
     lines = [START_BEGIN, "", f"`make repro` last ran {ran} of both data sources in {rec['total_s']:g} s "
              f"({rec['total_s'] / 60:.0f} min) on {_machine(rec['machine'])} ({Path(repro_json).as_posix()})."]
+    if sim_json is not None and Path(sim_json).exists():
+        sim = json.loads(Path(sim_json).read_text())
+        if any(stage.startswith("rig/") for stage in sim["stages"]):
+            raise ValueError(f"{sim_json}: a record of the rig's stages too, not of the simulated world's pipeline alone")
+        lines[-1] += (f" Without the real flights (the simulated world's pipeline alone) it took {sim['total_s']:g} s "
+                      f"({sim['total_s'] / 60:.0f} min; {Path(sim_json).as_posix()}, on {_machine(sim['machine'])}).")
     if campaign_json is not None and Path(campaign_json).exists():
         camp = json.loads(Path(campaign_json).read_text())
         lines[-1] += (f" `make campaign` took {camp['total_s']:g} s ({camp['total_s'] / 60:.0f} min; "
@@ -193,9 +200,10 @@ def start_section(repro_json: Path, campaign_json: Path | None = None) -> str:
     return "\n".join([*lines, "", START_END])
 
 
-def update_start(readme: Path, repro_json: Path, campaign_json: Path | None = None) -> bool:
+def update_start(readme: Path, repro_json: Path, campaign_json: Path | None = None,
+                 sim_json: Path | None = None) -> bool:
     """Rewrite the README's run-time line; True when it changed."""
-    return _replace(readme, START_BEGIN, START_END, start_section(repro_json, campaign_json))
+    return _replace(readme, START_BEGIN, START_END, start_section(repro_json, campaign_json, sim_json))
 
 
 def window_lines(report_md: Path) -> list[str]:
@@ -422,6 +430,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--campaign", type=Path, default=Path("reports/campaign/summary.md"))
     p.add_argument("--campaign-lock", type=Path, default=Path("campaign/dvc.lock"))
     p.add_argument("--campaign-repro", type=Path, default=Path("reports/campaign-repro.json"))
+    p.add_argument("--sim-repro", type=Path, default=Path("reports/repro-sim.json"))
     p.add_argument("--sections", nargs="+", choices=list(PAGES), default=list(PAGES))
     a = p.parse_args(argv)
     for which in a.sections:
@@ -446,7 +455,7 @@ def main(argv: list[str] | None = None) -> int:
                 continue
             changed = update_campaign(page, a.campaign, a.campaign_lock, a.campaign_repro)
         elif which == "start":
-            changed = update_start(page, a.repro, a.campaign_repro)
+            changed = update_start(page, a.repro, a.campaign_repro, a.sim_repro)
         else:
             changed = update_bench(page, a.bench, a.repro)
         print(f"{page}: {which} section {'updated' if changed else 'already current'}")
