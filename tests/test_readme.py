@@ -70,6 +70,22 @@ def test_readme_start_time_is_the_repro_record(monkeypatch):
                                         Path("reports/repro-sim.json"))
 
 
+def test_the_start_section_gives_the_simulated_pipelines_own_time_and_refuses_a_record_of_both(tmp_path):
+    import pytest
+
+    machine = {"cpu": "X", "cores": 2, "threads": 2, "torch": "t", "python": "p"}
+    both = {"stages": {"simulate@sim": 60.0, "rig/dvc.yaml:rig_fetch": 3.0}, "skipped": [], "total_s": 1500.0,
+            "machine": machine}
+    alone = {**both, "stages": {"simulate@sim": 60.0}, "total_s": 630.0}
+    for name, rec in (("both.json", both), ("alone.json", alone)):
+        (tmp_path / name).write_text(json.dumps(rec))
+    text = readme.start_section(tmp_path / "both.json", None, tmp_path / "alone.json")
+    assert "both data sources in 1500 s (25 min)" in text and "pipeline alone) it took 630 s (10 min;" in text
+    assert "(the simulated" not in readme.start_section(tmp_path / "both.json", None, tmp_path / "absent.json")
+    with pytest.raises(ValueError, match="rig"):
+        readme.start_section(tmp_path / "both.json", None, tmp_path / "both.json")
+
+
 def test_readme_shows_the_results_the_lock_file_records():
     part, sources, outs = stamped(readme.BEGIN, readme.END, ["report"])
     assert sources == {p: outs[p] for p in ("reports/benchmark.md", "reports/figures/mae_horizon.png")}
