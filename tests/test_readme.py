@@ -81,7 +81,8 @@ def test_the_start_section_gives_the_simulated_pipelines_own_time_and_refuses_a_
         (tmp_path / name).write_text(json.dumps(rec))
     text = readme.start_section(tmp_path / "both.json", None, tmp_path / "alone.json")
     assert "both data sources in 1500 s (25 min)" in text and "pipeline alone) it took 630 s (10 min;" in text
-    assert "(the simulated" not in readme.start_section(tmp_path / "both.json", None, tmp_path / "absent.json")
+    without = readme.start_section(tmp_path / "both.json", None, tmp_path / "absent.json")
+    assert "(the simulated" not in without
     with pytest.raises(ValueError, match="rig"):
         readme.start_section(tmp_path / "both.json", None, tmp_path / "both.json")
 

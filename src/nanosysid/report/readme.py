@@ -190,10 +190,12 @@ def start_section(repro_json: Path, campaign_json: Path | None = None, sim_json:
     if sim_json is not None and Path(sim_json).exists():
         sim = json.loads(Path(sim_json).read_text())
         if any(stage.startswith("rig/") for stage in sim["stages"]):
-            raise ValueError(f"{sim_json}: a record of the rig's stages too, not of the simulated world's pipeline alone")
+            raise ValueError(f"{sim_json}: a record of the rig's stages too, not of the simulated world's "
+                             "pipeline alone")
         where = "" if sim["machine"] == rec["machine"] else f", on {_machine(sim['machine'])}"
-        lines[-1] += (f" Without the real flights (the simulated world's pipeline alone) it took {sim['total_s']:g} s "
-                      f"({sim['total_s'] / 60:.0f} min; {Path(sim_json).as_posix()}{where}).")
+        lines[-1] += (f" Without the real flights (the simulated world's pipeline alone) it took "
+                      f"{sim['total_s']:g} s ({sim['total_s'] / 60:.0f} min; "
+                      f"{Path(sim_json).as_posix()}{where}).")
     if campaign_json is not None and Path(campaign_json).exists():
         camp = json.loads(Path(campaign_json).read_text())
         lines[-1] += (f" `make campaign` took {camp['total_s']:g} s ({camp['total_s'] / 60:.0f} min; "
