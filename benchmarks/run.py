@@ -2,7 +2,8 @@
 
 The record holds the machine (CPU model, cores, the pinned thread count, torch and Python
 versions), and for each benchmark its figures: times in seconds and the ratios against the
-reference each measures in the same run. No date: the same figures give the same bytes.
+reference each measures in the same run, and each time as a ratio against the previous record's
+where that was taken on the same machine. No date: the same figures give the same bytes.
 ``python -m nanosysid.report.readme --sections bench`` puts them into the README.
 
 ``benchmarks/run.py NAME ...`` runs only those; the record keeps the other benchmarks' figures
@@ -33,6 +34,17 @@ def _round(v):
     return float(f"{v:.3g}") if isinstance(v, float) else v
 
 
+def _number(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def against_previous(previous: dict, figures: dict) -> dict:
+    """Each time of ``figures`` (a key ending in ``_s``) as a ratio to the same time in ``previous``,
+    the last record's figures of that benchmark on the same machine: below 1, faster now."""
+    return {k: v / previous[k] for k, v in figures.items()
+            if k.endswith("_s") and _number(v) and _number(previous.get(k)) and previous[k] > 0}
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--out", type=Path, default=Path("reports/bench.json"))
@@ -43,16 +55,20 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"unknown benchmark {', '.join(unknown)}: choose from {', '.join(BENCHMARKS)}")
     sys.path.insert(0, str(Path(__file__).parent))
     record = {"format": FORMAT, "machine": machine(), "benchmarks": {}}
-    if set(a.names) < set(BENCHMARKS) and a.out.exists():
-        old = json.loads(a.out.read_text())
-        if old.get("format") == FORMAT and old.get("machine") == record["machine"]:
-            record["benchmarks"] = old["benchmarks"]
+    old = json.loads(a.out.read_text()) if a.out.exists() else {}
+    same = old.get("format") == FORMAT and old.get("machine") == record["machine"]
+    previous = old["benchmarks"] if same else {}
+    if set(a.names) < set(BENCHMARKS):
+        record["benchmarks"] = dict(previous)
     for name in a.names:
         print(f"== benchmarks/{name}.py", flush=True)
         module = importlib.import_module(name)
-        figures = module.main()
-        record["benchmarks"][name] = {"about": module.__doc__.strip().split("\n\n")[0].replace("\n", " "),
-                                      "figures": {k: _round(v) for k, v in figures.items()}}
+        figures = {k: _round(v) for k, v in module.main().items()}
+        entry = {"about": module.__doc__.strip().split("\n\n")[0].replace("\n", " "), "figures": figures}
+        ratios = against_previous(previous.get(name, {}).get("figures", {}), figures)
+        if ratios:
+            entry["against_previous"] = {k: _round(v) for k, v in ratios.items()}
+        record["benchmarks"][name] = entry
     record["benchmarks"] = {k: record["benchmarks"][k] for k in BENCHMARKS if k in record["benchmarks"]}
     from nanosysid.dataio import atomic_file
 

@@ -359,6 +359,26 @@ def test_the_readmes_bench_command_names_benchmarks_that_exist():
     assert r.returncode == 2 and "unknown benchmark nosuch: choose from" in r.stderr
 
 
+def test_bench_gives_each_time_against_the_previous_record_and_the_section_shows_it(tmp_path):
+    import importlib.util
+
+    bench = importlib.util.spec_from_file_location("bench_run", ROOT / "benchmarks" / "run.py")
+    module = importlib.util.module_from_spec(bench)
+    bench.loader.exec_module(module)
+    # 3.0 s before, 1.5 s now: half the time; counts, flags and in-run ratios are no times
+    previous = {"fit_s": 3.0, "loop_s": 0.0, "windows": 100, "same": True, "fit_over_loop": 4.0}
+    now = {"fit_s": 1.5, "loop_s": 2.0, "windows": 200, "same": True, "fit_over_loop": 2.0, "new_s": 1.0}
+    assert module.against_previous(previous, now) == {"fit_s": 0.5}
+    machine = {"cpu": "X", "cores": 2, "threads": 2, "torch": "t", "python": "p"}
+    record = {"machine": machine, "benchmarks": {
+        "a": {"about": "A.", "figures": now, "against_previous": {"fit_s": 0.5}},
+        "b": {"about": "B.", "figures": {"run_s": 1.0}}}}
+    (tmp_path / "bench.json").write_text(json.dumps(record))
+    section = readme.bench_section(tmp_path / "bench.json")
+    rows = [line for line in section.splitlines() if line.startswith("| `")]
+    assert rows[0].endswith("| fit: 0.5x |") and rows[1].endswith("| – |"), rows
+
+
 # every shell command of the README, by the start of its line, and where it is run as written
 # (file::test); a command added to the README without a runner fails the census below
 RUN_BY = {

@@ -297,11 +297,14 @@ def bench_section(bench_json: Path, repro_json: Path | None = None) -> str:
     record = json.loads(Path(bench_json).read_text())
     lines = [BENCH_BEGIN, "",
              f"Measured by `make bench` (`{Path(bench_json).as_posix()}`) on {_machine(record['machine'])}. Times in "
-             "seconds; ratios against the reference each script measures in the same run.", "",
-             "| Script | What it times | Figures |", "|---|---|---|"]
+             "seconds; ratios against the reference each script measures in the same run; each time against "
+             "the record before it on the same machine (below 1: faster now).", "",
+             "| Script | What it times | Figures | Against the previous record |", "|---|---|---|---|"]
     for name, b in record["benchmarks"].items():
         figures = "; ".join(_figure(k, v) for k, v in b["figures"].items())
-        lines.append(f"| `benchmarks/{name}.py` | {b['about']} | {figures} |")
+        previous = "; ".join(f"{k[:-2].replace('_', ' ')}: {v:g}x"
+                             for k, v in b.get("against_previous", {}).items())
+        lines.append(f"| `benchmarks/{name}.py` | {b['about']} | {figures} | {previous or '–'} |")
     if repro_json is not None and Path(repro_json).exists():
         lines += ["", *repro_lines(repro_json)]
     return "\n".join([*lines, "", BENCH_END])
