@@ -123,15 +123,12 @@ campaign: params
 	env $(PINNED) $(BIN)/python -m nanosysid.repro --pipeline campaign/dvc.yaml --jobs 1 \
 	    --out reports/campaign-repro.last.json
 
-# a run of both data sources is recorded in reports/repro.json; one without the real flights (the
-# simulated world's pipeline alone) in reports/repro-sim.json
+# make repro's last record is kept in reports/repro.json for a run of both data sources, in
+# reports/repro-sim.json for one without the real flights (the simulated world's pipeline alone)
 readme: $(STAMP)
-	@if [ -f reports/repro.last.json ]; then \
-	    if grep -q '"rig/' reports/repro.last.json; then cp reports/repro.last.json reports/repro.json; \
-	    else cp reports/repro.last.json reports/repro-sim.json; fi; \
-	fi
 	@if [ -f reports/campaign-repro.last.json ]; then cp reports/campaign-repro.last.json reports/campaign-repro.json; fi
-	$(BIN)/python -m nanosysid.report.readme --sections headline start results rig physics bench campaign
+	$(BIN)/python -m nanosysid.report.readme --keep reports/repro.last.json \
+	    --sections headline start results rig physics bench campaign
 
 # every benchmark's figures into reports/bench.json, and from there into the README;
 # `make bench NAMES="simulate_batch discover_speed"` reruns only those

@@ -85,6 +85,14 @@ def test_the_start_section_gives_the_simulated_pipelines_own_time_and_refuses_a_
     assert "(the simulated" not in without
     with pytest.raises(ValueError, match="rig"):
         readme.start_section(tmp_path / "both.json", None, tmp_path / "both.json")
+    # make readme keeps the last record by the run it is of: a run whose rig stages were all cached
+    # is of both sources still
+    cached = {**alone, "skipped": ["rig/dvc.yaml:rig_fetch"]}
+    for rec, kept in ((both, "repro.json"), (alone, "repro-sim.json"), (cached, "repro.json")):
+        last = tmp_path / "last.json"
+        last.write_text(json.dumps(rec))
+        to = readme.keep_repro_record(last, tmp_path / "repro.json", tmp_path / "repro-sim.json")
+        assert to.name == kept and json.loads(to.read_text()) == rec
 
 
 def test_readme_shows_the_results_the_lock_file_records():

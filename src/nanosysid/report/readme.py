@@ -180,6 +180,20 @@ def update_headline(readme: Path, paper_md: Path) -> bool | None:
     return _replace(readme, HEADLINE_BEGIN, HEADLINE_END, headline_section(paper_md))
 
 
+def covers_rig(record: dict) -> bool:
+    """Whether a ``make repro`` record (``nanosysid.repro --out``) is of a run with the real flights:
+    one of the rig pipeline's stages ran or was skipped in it."""
+    return any(stage.startswith("rig/") for stage in [*record["stages"], *record["skipped"]])
+
+
+def keep_repro_record(last: Path, both: Path, sim: Path) -> Path:
+    """Copy ``make repro``'s last record to ``both`` where it is of a run with the real flights, else
+    to ``sim`` (the simulated world's pipeline alone); the path it went to."""
+    to = both if covers_rig(json.loads(Path(last).read_text())) else sim
+    shutil.copyfile(last, to)
+    return to
+
+
 def start_section(repro_json: Path, campaign_json: Path | None = None, sim_json: Path | None = None) -> str:
     """How long ``make repro`` (and ``make campaign``) took, from their last records; ``sim_json``:
     a record of ``make repro`` without the real flights (the simulated world's pipeline alone)."""
@@ -189,7 +203,7 @@ def start_section(repro_json: Path, campaign_json: Path | None = None, sim_json:
              f"({rec['total_s'] / 60:.0f} min) on {_machine(rec['machine'])} ({Path(repro_json).as_posix()})."]
     if sim_json is not None and Path(sim_json).exists():
         sim = json.loads(Path(sim_json).read_text())
-        if any(stage.startswith("rig/") for stage in sim["stages"]):
+        if covers_rig(sim):
             raise ValueError(f"{sim_json}: a record of the rig's stages too, not of the simulated world's "
                              "pipeline alone")
         where = "" if sim["machine"] == rec["machine"] else f", on {_machine(sim['machine'])}"
@@ -438,7 +452,12 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--campaign-repro", type=Path, default=Path("reports/campaign-repro.json"))
     p.add_argument("--sim-repro", type=Path, default=Path("reports/repro-sim.json"))
     p.add_argument("--sections", nargs="+", choices=list(PAGES), default=list(PAGES))
+    p.add_argument("--keep", type=Path, default=None,
+                   help="make repro's last record (reports/repro.last.json), kept first as --repro where it "
+                        "is of a run with the real flights, else as --sim-repro")
     a = p.parse_args(argv)
+    if a.keep is not None and a.keep.exists():
+        print(f"{a.keep}: kept as {keep_repro_record(a.keep, a.repro, a.sim_repro)}")
     for which in a.sections:
         page = a.root / PAGES[which]
         if which == "results":
