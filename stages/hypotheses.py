@@ -1,6 +1,6 @@
 """hypotheses: the low-frequency roll/pitch torque's hypotheses tested apart on the training
-flights (with each flight's take-off hold where the logs hold one), and the tests judged on
-simulated worlds whose truth is hidden from them."""
+flights (with each flight's take-off hold where the logs hold one). The tests judged on simulated
+worlds whose truth is hidden from them are the campaign pipeline's (stages/hypothesis_worlds.py)."""
 
 import logging
 from pathlib import Path
@@ -8,13 +8,12 @@ from pathlib import Path
 import numpy as np
 from omegaconf import DictConfig
 
-from nanosysid import campaign, hypotheses, hypothesis_worlds, protocol
+from nanosysid import hypotheses, protocol
 from nanosysid.dynamics import GRAVITY
 from nanosysid.dataio import atomic_dir, atomic_file, json_text
 from nanosysid.errors import ConfigError
 from nanosysid.identify import identified_vehicle
 from nanosysid.report.hypotheses import hypotheses_markdown
-from nanosysid.sim import SimConfig
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.hypotheses")
@@ -38,20 +37,10 @@ def _holds(cfg: DictConfig, flights, vehicle, window: int, order: int) -> dict:
     return out
 
 
-def _counts(hc: DictConfig) -> dict[str, int]:
-    """The worlds per family (the settings' kinds are checked where the config is read)."""
-    counts = {str(fam): int(n) for fam, n in (plain(hc.worlds) or {}).items()}
-    unknown = sorted(set(counts) - set(hypothesis_worlds.FAMILIES))
-    if unknown:
-        raise ConfigError(f"hypotheses.worlds.{unknown[0]}: no such family; the families are "
-                          f"{', '.join(hypothesis_worlds.FAMILIES)}")
-    return {fam: n for fam, n in counts.items() if n}
-
-
 def main(cfg: DictConfig) -> dict:
     """Write ``<hypotheses.out_dir>/report.md`` and ``result.json``."""
     hc = cfg.hypotheses
-    cutoff, counts = float(hc.cutoff), _counts(hc)
+    cutoff = float(hc.cutoff)
     window, order = int(cfg.discover.savgol_window), int(cfg.discover.savgol_order)
     bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
     nyquist = 0.5 / float(np.median(np.diff(bench.train[0].t)))
@@ -62,21 +51,14 @@ def main(cfg: DictConfig) -> dict:
     holds = _holds(cfg, bench.train, vehicle, window, order) if bool(hc.holds) else {}
     result = hypotheses.tested_apart(data, hypotheses.reference_correlation(bench.train, data),
                                         holds=holds or None)
-    worlds = None
-    if counts:
-        setup_sim = campaign.short_flights_config(float(hc.duration), SimConfig.from_mapping(plain(cfg.sim.flight)))
-        rows = hypothesis_worlds.check(hypothesis_worlds.draw(counts, int(hc.seed)), cfg=setup_sim,
-                                       vehicle=vehicle_of(cfg), cutoff=cutoff, window=window, order=order,
-                                       progress=True)
-        worlds = {**hypothesis_worlds.summarize(rows), "rows": rows}
     record = {"named": result["named"], "share": result["share"], "air": result["air"], "hover": result["hover"],
               "repeats": result["repeats"], "hypotheses": result["hypotheses"],
-              "rounds": result["rounds"], "worlds": worlds}
+              "rounds": result["rounds"]}
     with atomic_dir(Path(hc.out_dir), inputs=[cfg.paths.split]) as tmp:
         with atomic_file(tmp / "result.json") as f:
             f.write_text(json_text(_without_series(record), sort_keys=True))
         with atomic_file(tmp / "report.md") as f:
-            f.write_text(hypotheses_markdown(result, source=str(hc.source), cutoff=cutoff, worlds=worlds,
+            f.write_text(hypotheses_markdown(result, source=str(hc.source), cutoff=cutoff,
                                              weight=vehicle.mass * GRAVITY))
     log.info("hypotheses: named %s (held out %s)", result["named"], result["share"])
     return record

@@ -52,8 +52,8 @@ class DvcRepo:
         self.sh("git", "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", message, cwd=cwd)
 
 
-# the README's first look (`make quick`): short flights, two epochs, the campaign and the
-# hypotheses' worlds check at one world
+# the README's first look (`make quick`): short flights flown eagerly, two epochs (the campaign's
+# pipeline, with its one world, is make quick's too, and no part of this pipeline)
 QUICK = ["profile=quick"]
 # the export and MCU stages of one model: the others' are the same two DVC stages over another
 # model's files (tests/test_pipeline.py runs them for a physics, a learned and a discovered model)

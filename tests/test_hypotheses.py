@@ -142,3 +142,35 @@ def test_per_flight_interval_covers_the_truth_at_its_level():
         pf = H.per_flight(data, ["cg_offset"])
         covered += bool(abs(pf["mean"][0] - truth[0]) <= pf["half_width"][0])
     assert 0.92 <= covered / 400 <= 0.98
+
+
+@pytest.mark.slow
+def test_the_worlds_stage_judges_the_tests_on_a_world_whose_truth_it_writes_beside_them(tmp_path, monkeypatch):
+    # the campaign pipeline's hypothesis_worlds stage at its smallest: one centre-of-mass world of
+    # 6 s flights; its row holds the world's true offset (the judge's, never the tests'), and the
+    # report's table row is the summary's count
+    import json
+    from pathlib import Path
+
+    from nanosysid import config
+    from stages import hypothesis_worlds
+    from stages.common import run_stage
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)
+    params = tmp_path / "params.yaml"
+    config.compose([], out=params)
+    out = tmp_path / "worlds"
+    argv = ["--params", str(params), "hypotheses.worlds.com_offset=1", "hypotheses.worlds.turbulence=0",
+            "hypotheses.worlds.rotor_drag=0", "hypotheses.duration=6.0", f"hypotheses.worlds_dir={out}"]
+    assert run_stage(hypothesis_worlds.main, description="", argv=argv) == 0
+    result = json.loads((out / "result.json").read_text())
+    (row,) = result["rows"]
+    assert row["family"] == "com_offset" and len(row["cg_offset"]["truth"]) == 2
+    assert row["cg_offset"]["covered"] in (True, False) and np.hypot(*row["cg_offset"]["truth"]) > 0
+    fam = result["families"]["com_offset"]
+    assert f"| com_offset | 1 | {fam['requirement']} | {fam['met']}/1 |" in (out / "report.md").read_text()
+    # no world at all is one error naming the setting, and writes nothing
+    none = [a.replace("com_offset=1", "com_offset=0") for a in argv[:-1]] + [f"hypotheses.worlds_dir={tmp_path / 'none'}"]
+    assert run_stage(hypothesis_worlds.main, description="", argv=none) != 0
+    assert not (tmp_path / "none").exists()

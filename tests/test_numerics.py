@@ -14,6 +14,8 @@ from test_pipeline import TINY_SIM, tiny_args  # noqa: F401  (TINY_SIM is part o
 
 ROOT = Path(__file__).resolve().parents[1]
 STAGES = ["simulate", "extract", "sync", "filter", "split"]
+# the simulator's compiled step, whose inductor code the pinned instruction set holds to one path
+COMPILED = ["sim.flight.compile=true"]
 
 
 def run_stages(root: Path, env: dict) -> subprocess.Popen:
@@ -26,9 +28,9 @@ def run_stages(root: Path, env: dict) -> subprocess.Popen:
         "from stages.common import run_stage",
         f"for stage in {STAGES!r}:",
         "    main = importlib.import_module(f'stages.{stage}').main",
-        f"    if run_stage(main, description='', argv={tiny_args(root)!r}):",
+        f"    if run_stage(main, description='', argv={tiny_args(root, *COMPILED)!r}):",
         "        sys.exit(f'stage {stage} failed')",
-        f"train = [sys.executable, '-m', 'stages.train', 'residual', *{tiny_args(root)!r}]",
+        f"train = [sys.executable, '-m', 'stages.train', 'residual', *{tiny_args(root, *COMPILED)!r}]",
         "sys.exit(subprocess.run(train, env=caller).returncode)",
     ])
     return subprocess.Popen([sys.executable, "-c", script], cwd=ROOT, env=env, stdout=subprocess.DEVNULL,

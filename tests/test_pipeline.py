@@ -27,6 +27,9 @@ ROOT = Path(__file__).resolve().parents[1]
 TINY_SIM = [
     "sim.runs={square: 0, random: 0, chirp: 2, melon: 2, yawsweep: 1}",
     "sim.flight.preroll=0.5",
+    # the simulator's and the oracle's eager step, as the quick profile's (the compiled ones are
+    # checked against them in tests/test_sim.py, and run in tests/test_numerics.py)
+    "sim.flight.compile=false",
     "sim.flight.trajectories.yawsweep.duration=4.0",
     "sim.flight.trajectories.yawsweep.fade=0.5",
     "sim.flight.trajectories.chirp.duration=6.0",

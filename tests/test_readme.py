@@ -444,21 +444,20 @@ def test_the_window_tracks_lines_are_its_reports_table_and_last_verdict(tmp_path
     assert "**What stops it**: this." in lines and "**Old**: no." not in lines
 
 
-def test_the_hypotheses_lines_are_the_reports_verdicts_checks_and_worlds_table(tmp_path):
+def test_the_hypotheses_lines_are_the_reports_verdicts_and_checks(tmp_path):
     rig, sim = tmp_path / "rig.md", tmp_path / "sim.md"
     rig.write_text("# Title\n\nIntro.\n\n**Verdict.** `drag_moment` explains 86 %.\n\n| hypothesis | x |\n|---|---|\n"
                    "| `cg_offset` | 1 |\n\n## The hover check\n\nResidual torque in hover, mean: 1.\n\n"
                    "Mean over flights: r_x 2.\n")
-    sim.write_text("# Title\n\n**Verdict.** The air.\n\n| hypothesis | x |\n|---|---|\n| a | 1 |\n\n"
-                   "| world family | worlds |\n|---|---|\n| com_offset | 20 |\n\nAfter.\n")
+    sim.write_text("# Title\n\n**Verdict.** The air.\n\n| hypothesis | x |\n|---|---|\n| a | 1 |\n")
     lines = readme.hypotheses_lines(rig, sim)
     assert "**Verdict.** `drag_moment` explains 86 %." in lines
     assert "Residual torque in hover, mean: 1." in lines and "Mean over flights: r_x 2." in lines
     assert "| `cg_offset` | 1 |" not in lines and "| a | 1 |" not in lines
     assert "On the default simulated world's flights: The air." in lines
-    assert "| com_offset | 20 |" in lines and "After." not in lines
     # without the simulated pipeline's report, the rig's lines alone
-    assert not any("world family" in line for line in readme.hypotheses_lines(rig, tmp_path / "absent.md"))
+    alone = readme.hypotheses_lines(rig, tmp_path / "absent.md")
+    assert not any("simulated world" in line for line in alone) and alone == lines[:-2]
 
 
 def test_readme_campaign_section_is_the_summary_the_campaigns_lock_records(monkeypatch):
@@ -471,8 +470,11 @@ def test_readme_campaign_section_is_the_summary_the_campaigns_lock_records(monke
     assert sources["reports/campaign"] == out["md5"]
     summary = Path("reports/campaign/summary.md")
     if summary.exists() and hashlib.md5(summary.read_bytes()).hexdigest() == sources[summary.as_posix()]:
-        record = Path("reports/campaign-repro.json")
-        assert part == readme.campaign_section(summary, Path("campaign/dvc.lock"), record)
+        record, worlds = Path("reports/campaign-repro.json"), Path("reports/hypothesis-worlds/report.md")
+        assert part == readme.campaign_section(summary, Path("campaign/dvc.lock"), record, worlds_md=worlds)
+    # the hypothesis tests' worlds table, stamped with what the lock records for its folder
+    (worlds_out,) = lock["stages"]["hypothesis_worlds@sim"]["outs"]
+    assert sources["reports/hypothesis-worlds"] == worlds_out["md5"]
 
 
 def test_the_campaign_section_copies_its_reports_counts_and_refuses_one_its_lock_does_not_record(tmp_path):
@@ -499,3 +501,25 @@ def test_the_campaign_section_copies_its_reports_counts_and_refuses_one_its_lock
     listing.write_text(json.dumps([{"relpath": "summary.md", "md5": "f" * 32}]))
     with pytest.raises(ValueError, match="is not the one .* records"):
         readme.campaign_section(out / "summary.md", lock, None, cache)
+
+
+def test_the_campaign_section_ends_with_the_hypothesis_tests_worlds_table_its_lock_records(tmp_path):
+    out, worlds = tmp_path / "reports" / "campaign", tmp_path / "reports" / "hypothesis-worlds"
+    out.mkdir(parents=True)
+    worlds.mkdir()
+    (out / "summary.md").write_text("# Discovery over hidden worlds\n\n- named verdicts: 8\n")
+    (worlds / "report.md").write_text("# Worlds\n\nIntro.\n\n| world family | worlds | met |\n|---|---|---|\n"
+                                      "| com_offset | 20 | 19/20 |\n\nAfter.\n")
+    lock = tmp_path / "dvc.lock"
+    lock.write_text(yaml.safe_dump({"schema": "2.0", "stages": {
+        "campaign@sim": {"outs": [{"path": out.as_posix(), "md5": "ab" + "0" * 30 + ".dir"}]},
+        "hypothesis_worlds@sim": {"outs": [{"path": worlds.as_posix(), "md5": "cd" + "1" * 30 + ".dir"}]}}}))
+    text = readme.campaign_section(out / "summary.md", lock, None, tmp_path / "cache", worlds_md=worlds / "report.md")
+    lines = text.splitlines()
+    table = lines.index("| world family | worlds | met |")
+    assert lines[table:table + 4] == ["| world family | worlds | met |", "|---|---|---|", "| com_offset | 20 | 19/20 |", ""]
+    assert f"{worlds.as_posix()} md5 cd{'1' * 30}.dir" in text and "After." not in text and "Intro." not in text
+    assert table > lines.index("- named verdicts: 8") and lines[-1] == readme.CAMPAIGN_END
+    # without the worlds report (make campaign's stage not run here), the campaign's counts alone
+    alone = readme.campaign_section(out / "summary.md", lock, None, tmp_path / "cache", worlds_md=worlds / "absent.md")
+    assert "world family" not in alone and "hypothesis-worlds" not in alone

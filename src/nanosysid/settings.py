@@ -136,7 +136,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     # the low-frequency torque's hypotheses
     ("hypotheses.cutoff", POSITIVE), ("hypotheses.holds", FLAG), ("hypotheses.identified", TEXT),
     ("hypotheses.worlds.*", NONNEG_COUNT), ("hypotheses.duration", POSITIVE),
-    ("hypotheses.source", TEXT), ("hypotheses.out_dir", TEXT),
+    ("hypotheses.source", TEXT), ("hypotheses.out_dir", TEXT), ("hypotheses.worlds_dir", TEXT),
     # the campaign and the launcher
     ("campaign.worlds", COUNT), ("campaign.chunk", COUNT), ("campaign.duration", POSITIVE),
     ("campaign.user_share", SHARE), ("campaign.max_effects", NONNEG_COUNT), ("campaign.relevant", NONNEG),

@@ -1,6 +1,6 @@
 """The hypotheses stage's report: the low-frequency roll/pitch torque's hypotheses, each with its
-coefficients, held-out share, hover check and repeatability, what the flights name and exclude,
-and the worlds check's counts."""
+coefficients, held-out share, hover check and repeatability, what the flights name and exclude;
+and the hypothesis_worlds stage's report, the tests judged on simulated worlds of one effect each."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from typing import Any, Mapping, Sequence
 
 from nanosysid import hypotheses
 
-__all__ = ["headline", "hypotheses_markdown"]
+__all__ = ["headline", "hypotheses_markdown", "worlds_markdown", "WORLDS_TITLE"]
 
 
 def _pm(mean: Sequence[float], half: Sequence[float], params: Sequence[str]) -> str:
@@ -42,10 +42,10 @@ def headline(result: Mapping[str, Any]) -> str:
 
 
 def hypotheses_markdown(result: Mapping[str, Any], *, source: str, cutoff: float,
-                        worlds: Mapping[str, Any] | None = None, weight: float | None = None) -> str:
+                        weight: float | None = None) -> str:
     """The report: the table of hypotheses, the selection's rounds, the hover torque, the take-off
-    holds (where measured), the repeatability and the worlds check; ``weight`` (N), the vehicle's
-    m g, turns an offset into the torque it makes in hover."""
+    holds (where measured) and the repeatability; ``weight`` (N), the vehicle's m g, turns an
+    offset into the torque it makes in hover."""
     recs = result["hypotheses"]
     hover = result["hover"]
     L = [f"# The low-frequency roll/pitch torque: its hypotheses, tested apart ({source})", "",
@@ -117,16 +117,26 @@ def hypotheses_markdown(result: Mapping[str, Any], *, source: str, cutoff: float
               + ("the offset moves between flights, as a battery re-seated between flights moves it." if hold["moved"] else
                  "the offset stays put between flights.")
               + (f" An offset of 1 mm makes {1e3 * weight * 1e-3:.2f} mN·m in hover (m g d)." if weight else "")]
-    if worlds:
-        L += ["", "## The tests on simulated worlds whose truth is hidden", "",
-              "Worlds with one of nature's effects alone (strength 0.3 to 3 times its record's), every training "
-              "trajectory flown twice; the tests see the flights only.", "",
-              "| world family | worlds | requirement | met | named (worlds) | cg_offset interval covers the truth |",
-              "|---|---|---|---|---|---|"]
-        for fam, rec in worlds["families"].items():
-            cov = rec.get("coverage")
-            cov_s = f"{cov['covered']}/{cov['worlds']}" if cov else "–"
-            named = ", ".join(f"{n} {k}" for n, k in rec["named"].items())
-            L.append(f"| {fam} | {rec['worlds']} | {rec['requirement']} | {rec['met']}/{rec['worlds']} | {named} | "
-                     f"{cov_s} |")
+    return "\n".join(L) + "\n"
+
+
+WORLDS_TITLE = "# The low-frequency torque's hypothesis tests on simulated worlds whose truth is hidden"
+
+
+def worlds_markdown(worlds: Mapping[str, Any], *, cutoff: float) -> str:
+    """The hypothesis_worlds stage's report: per family of worlds, what the tests named and
+    whether the family's requirement and the ``cg_offset`` interval's coverage hold
+    (:func:`nanosysid.hypothesis_worlds.summarize`)."""
+    L = [WORLDS_TITLE, "",
+         "Worlds with one of nature's effects alone (strength 0.3 to 3 times its record's), every training "
+         f"trajectory flown twice; the tests (the roll/pitch torque low-passed at {cutoff:g} Hz) see the flights "
+         "only.", "",
+         "| world family | worlds | requirement | met | named (worlds) | cg_offset interval covers the truth |",
+         "|---|---|---|---|---|---|"]
+    for fam, rec in worlds["families"].items():
+        cov = rec.get("coverage")
+        cov_s = f"{cov['covered']}/{cov['worlds']}" if cov else "–"
+        named = ", ".join(f"{n} {k}" for n, k in rec["named"].items())
+        L.append(f"| {fam} | {rec['worlds']} | {rec['requirement']} | {rec['met']}/{rec['worlds']} | {named} | "
+                 f"{cov_s} |")
     return "\n".join(L) + "\n"

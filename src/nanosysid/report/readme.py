@@ -26,8 +26,9 @@ The world section is the table of the simulated world's effects, from their reco
 (:data:`nanosysid.sim.world.RECORDS`).
 
 The campaign section is the headline of the campaign's pipeline (``make campaign``,
-``campaign/dvc.yaml``): its report's counts (``reports/campaign/summary.md``), stamped with the hash
-``campaign/dvc.lock`` records for its outputs, and its time from ``reports/campaign-repro.json``.
+``campaign/dvc.yaml``): its report's counts (``reports/campaign/summary.md``) and the hypothesis
+tests' worlds table (``reports/hypothesis-worlds/report.md``), each stamped with the hash
+``campaign/dvc.lock`` records for its folder, and its time from ``reports/campaign-repro.json``.
 
 The reliability section counts the hostile-input matrix's cases per class of fault from its
 record, ``tests/faults/record.json``, which a full run of ``make test`` writes.
@@ -235,10 +236,10 @@ def window_lines(report_md: Path) -> list[str]:
             *table, "", *verdict[-1:], ""]
 
 
-def hypotheses_lines(report_md: Path, worlds_md: Path | None = None) -> list[str]:
+def hypotheses_lines(report_md: Path, sim_md: Path | None = None) -> list[str]:
     """The low-frequency torque's hypotheses on the real flights: the verdict, the hover check and
-    the take-off holds, from their report; and the tests' counts on simulated worlds, from the
-    simulated pipeline's report where it is there."""
+    the take-off holds, from their report; and the verdict on the simulated world's flights, from
+    the simulated pipeline's report where it is there."""
     lines = Path(report_md).read_text().splitlines()
     pick = [line for line in lines if line.startswith(("**Verdict.**", "Residual torque in hover", "Each flight's take-off",
                                                        "Mean over flights"))]
@@ -247,17 +248,25 @@ def hypotheses_lines(report_md: Path, worlds_md: Path | None = None) -> list[str
            f"reference ([report]({Path(report_md).as_posix()})):", ""]
     for line in pick:
         out += [line, ""]
-    if worlds_md is not None and Path(worlds_md).is_file():
-        w = Path(worlds_md).read_text().splitlines()
-        verdict = [line.removeprefix("**Verdict.** ") for line in w if line.startswith("**Verdict.**")]
+    if sim_md is not None and Path(sim_md).is_file():
+        verdict = [line.removeprefix("**Verdict.** ") for line in Path(sim_md).read_text().splitlines()
+                   if line.startswith("**Verdict.**")]
         if verdict:
             out += [f"On the default simulated world's flights: {verdict[0]}", ""]
-        start = next((i for i, line in enumerate(w) if line.startswith("| world family")), None)
-        if start is not None:
-            table = w[start:next((i for i in range(start, len(w)) if not w[i].startswith("|")), len(w))]
-            out += [f"The same tests on simulated worlds of one effect each ([report]({Path(worlds_md).as_posix()})):",
-                    "", *table, ""]
     return out
+
+
+def worlds_lines(worlds_md: Path, lock: Path) -> list[str]:
+    """The hypothesis tests judged on simulated worlds of one effect each: the table of the
+    campaign pipeline's hypothesis_worlds report, stamped with the hash its lock records."""
+    worlds_md = Path(worlds_md)
+    text = worlds_md.read_text().splitlines()
+    table = list(itertools.takewhile(lambda line: line.startswith("|"),
+                                     itertools.dropwhile(lambda line: not line.startswith("| world family"), text)))
+    return [f"<!-- sources: {worlds_md.parent.as_posix()} md5 {recorded_dir(lock, worlds_md.parent.as_posix())} "
+            f"({Path(lock).as_posix()}), {worlds_md.as_posix()} md5 {file_md5(worlds_md)} -->", "",
+            "The low-frequency torque's hypothesis tests (the real flights' above) on simulated worlds of one effect "
+            f"each, whose truth the tests never see ([report]({worlds_md.as_posix()})):", "", *table, ""]
 
 
 def update_rig(readme: Path, paper_md: Path, figure: Path, figure_copy: Path) -> bool | None:
@@ -390,11 +399,12 @@ def _listed_md5(cache: Path, dir_md5: str, relpath: str) -> str | None:
 
 
 def campaign_section(summary_md: Path, lock: Path, record_json: Path | None = None,
-                     cache: Path = Path(".dvc/cache")) -> str:
+                     cache: Path = Path(".dvc/cache"), worlds_md: Path | None = None) -> str:
     """The campaign section: the headline counts of discovery over hidden worlds and the families'
     table, copied from the campaign's report (``reports/campaign/summary.md``), stamped with the
     hash its lock records for the folder; the report must be the one that folder holds where DVC's
-    cache lists it."""
+    cache lists it. With ``worlds_md`` (where it is there), the hypothesis tests' worlds table
+    (:func:`worlds_lines`) after them."""
     summary_md = Path(summary_md)
     out = summary_md.parent.as_posix()
     dir_md5 = recorded_dir(lock, out)
@@ -418,13 +428,18 @@ def campaign_section(summary_md: Path, lock: Path, record_json: Path | None = No
     intro = next((line for line in text if line.strip() and not line.startswith("#")), "")
     lines += ([intro, ""] if intro and not intro.startswith("- ") else []) + [*bullets, ""] + ([*table, ""] if table else [])
     lines += [f"The full report, with recall by strength and identification over the worlds, is "
-              f"`{summary_md.as_posix()}`.", "", CAMPAIGN_END]
+              f"`{summary_md.as_posix()}`.", ""]
+    if worlds_md is not None and Path(worlds_md).is_file():
+        lines += worlds_lines(worlds_md, lock)
+    lines += [CAMPAIGN_END]
     return "\n".join(lines)
 
 
-def update_campaign(readme: Path, summary_md: Path, lock: Path, record_json: Path | None = None) -> bool:
+def update_campaign(readme: Path, summary_md: Path, lock: Path, record_json: Path | None = None,
+                    worlds_md: Path | None = None) -> bool:
     """Rewrite the campaign section of ``readme``; True when it changed."""
-    return _replace(readme, CAMPAIGN_BEGIN, CAMPAIGN_END, campaign_section(summary_md, lock, record_json))
+    return _replace(readme, CAMPAIGN_BEGIN, CAMPAIGN_END,
+                    campaign_section(summary_md, lock, record_json, worlds_md=worlds_md))
 
 
 def update_bench(readme: Path, bench_json: Path, repro_json: Path | None = None) -> bool:
@@ -450,6 +465,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--campaign", type=Path, default=Path("reports/campaign/summary.md"))
     p.add_argument("--campaign-lock", type=Path, default=Path("campaign/dvc.lock"))
     p.add_argument("--campaign-repro", type=Path, default=Path("reports/campaign-repro.json"))
+    p.add_argument("--hypothesis-worlds", type=Path, default=Path("reports/hypothesis-worlds/report.md"))
     p.add_argument("--sim-repro", type=Path, default=Path("reports/repro-sim.json"))
     p.add_argument("--sections", nargs="+", choices=list(PAGES), default=list(PAGES))
     p.add_argument("--keep", type=Path, default=None,
@@ -478,7 +494,7 @@ def main(argv: list[str] | None = None) -> int:
             if not a.campaign.exists():
                 print(f"{page}: campaign section left as it is ({a.campaign} is not here: `make campaign` did not run)")
                 continue
-            changed = update_campaign(page, a.campaign, a.campaign_lock, a.campaign_repro)
+            changed = update_campaign(page, a.campaign, a.campaign_lock, a.campaign_repro, a.hypothesis_worlds)
         elif which == "start":
             changed = update_start(page, a.repro, a.campaign_repro, a.sim_repro)
         else:
