@@ -25,7 +25,7 @@ from pathlib import Path  # noqa: E402
 from nanosysid.report.runtimes import machine  # noqa: E402
 
 BENCHMARKS = ("simulate_speed", "simulate_batch", "data_pipeline_speed", "evaluate_speed", "oracle_speed", "train_threads",
-              "pinned_level", "discover_speed", "heldout_speed", "visualize_speed", "busy_paths",
+              "pinned_level", "discover_speed", "heldout_speed", "blas_threads", "visualize_speed", "busy_paths",
               "test_suite")
 FORMAT = "nanosysid-bench-1"
 

@@ -30,7 +30,8 @@ __all__ = ["PINNED", "PINNED_V3", "V3_FLAGS", "LEVELS", "STAGE_LEVELS", "THREADS
 # Threads split sums (a matrix product's, a reduction's) into partial sums whose order sets the
 # last bits: the count is fixed, whatever the machine's cores; NANOSYSID_THREADS changes it (and
 # with it the last bits of the outputs that use several). Training has its own count
-# (``train.threads``), loops over time on small tensors theirs (:data:`LOOP_THREADS`).
+# (``train.threads``), loops over time on small tensors theirs (:data:`LOOP_THREADS`), numpy's
+# and scipy's OpenBLAS one (``OPENBLAS_NUM_THREADS``).
 THREADS = os.environ.get("NANOSYSID_THREADS", "2")
 
 PINNED: dict[str, str] = {
@@ -46,6 +47,11 @@ PINNED: dict[str, str] = {
     "NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR",
     # OpenBLAS under numpy and scipy: the Nehalem kernels (SSE4.2), which every x86-64-v2 CPU runs
     "OPENBLAS_CORETYPE": "Nehalem",
+    # and one thread: the threads of a threaded matrix product wait for each other by spinning, not
+    # sleeping, so beside another busy process (make repro runs two stages on two cores) they take
+    # the cores their partners need; the window stage beside the rig's ran 8x slower
+    # (benchmarks/blas_threads.py). The count splits some products' sums: other last bits
+    "OPENBLAS_NUM_THREADS": "1",
     # inductor's C++ (the simulator's compiled step): the x86-64-v2 instruction set, not the host's
     "TORCHINDUCTOR_CPP_MARCH": "x86-64-v2",
     # OpenMP's idle threads sleep instead of spinning: a switch of speed only (no byte changes),
