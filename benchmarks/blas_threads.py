@@ -57,7 +57,8 @@ def main() -> dict[str, float]:
         figures[f"{key}_alone_s"] = _fits(threads, 1)
         figures[f"{key}_side_by_side_s"] = _fits(threads, 2)
     for how in ("alone", "side_by_side"):
-        figures[f"two_threads_{how}_over_one"] = figures[f"two_threads_{how}_s"] / figures[f"one_thread_{how}_s"]
+        two, one = figures[f"two_threads_{how}_s"], figures[f"one_thread_{how}_s"]
+        figures[f"two_threads_{how}_over_one"] = two / one
     for k, v in figures.items():
         print(f"{k}: {v:.3g}")
     print(f"({time.perf_counter() - t0:.0f} s in all)")
