@@ -506,6 +506,8 @@ def test_the_campaign_section_copies_its_reports_counts_and_refuses_one_its_lock
 
 
 def test_the_campaign_section_ends_with_the_hypothesis_tests_worlds_table_its_lock_records(tmp_path):
+    import pytest
+
     out, worlds = tmp_path / "reports" / "campaign", tmp_path / "reports" / "hypothesis-worlds"
     out.mkdir(parents=True)
     worlds.mkdir()
@@ -522,6 +524,12 @@ def test_the_campaign_section_ends_with_the_hypothesis_tests_worlds_table_its_lo
     assert lines[table:table + 4] == ["| world family | worlds | met |", "|---|---|---|", "| com_offset | 20 | 19/20 |", ""]
     assert f"{worlds.as_posix()} md5 cd{'1' * 30}.dir" in text and "After." not in text and "Intro." not in text
     assert table > lines.index("- named verdicts: 8") and lines[-1] == readme.CAMPAIGN_END
+    # a report other than the one DVC's cache lists for the recorded folder is refused
+    listing = tmp_path / "cache" / "files" / "md5" / "cd" / ("1" * 30 + ".dir")
+    listing.parent.mkdir(parents=True)
+    listing.write_text(json.dumps([{"relpath": "report.md", "md5": "f" * 32}]))
+    with pytest.raises(ValueError, match="is not the one .* records"):
+        readme.campaign_section(out / "summary.md", lock, None, tmp_path / "cache", worlds_md=worlds / "report.md")
     # without the worlds report (make campaign's stage not run here), the campaign's counts alone
     alone = readme.campaign_section(out / "summary.md", lock, None, tmp_path / "cache", worlds_md=worlds / "absent.md")
     assert "world family" not in alone and "hypothesis-worlds" not in alone

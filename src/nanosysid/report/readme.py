@@ -256,10 +256,14 @@ def hypotheses_lines(report_md: Path, sim_md: Path | None = None) -> list[str]:
     return out
 
 
-def worlds_lines(worlds_md: Path, lock: Path) -> list[str]:
+def worlds_lines(worlds_md: Path, lock: Path, cache: Path = Path(".dvc/cache")) -> list[str]:
     """The hypothesis tests judged on simulated worlds of one effect each: the table of the
-    campaign pipeline's hypothesis_worlds report, stamped with the hash its lock records."""
+    campaign pipeline's hypothesis_worlds report, stamped with the hash its lock records; the
+    report must be the one that folder holds where DVC's cache lists it."""
     worlds_md = Path(worlds_md)
+    listed = _listed_md5(Path(cache), recorded_dir(lock, worlds_md.parent.as_posix()), worlds_md.name)
+    if listed is not None and listed != file_md5(worlds_md):
+        raise ValueError(f"{worlds_md} is not the one {lock} records (run `make campaign`)")
     text = worlds_md.read_text().splitlines()
     table = list(itertools.takewhile(lambda line: line.startswith("|"),
                                      itertools.dropwhile(lambda line: not line.startswith("| world family"), text)))
@@ -430,7 +434,7 @@ def campaign_section(summary_md: Path, lock: Path, record_json: Path | None = No
     lines += [f"The full report, with recall by strength and identification over the worlds, is "
               f"`{summary_md.as_posix()}`.", ""]
     if worlds_md is not None and Path(worlds_md).is_file():
-        lines += worlds_lines(worlds_md, lock)
+        lines += worlds_lines(worlds_md, lock, cache)
     lines += [CAMPAIGN_END]
     return "\n".join(lines)
 
