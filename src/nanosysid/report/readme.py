@@ -261,14 +261,10 @@ def worlds_lines(worlds_md: Path, lock: Path, cache: Path = Path(".dvc/cache")) 
     campaign pipeline's hypothesis_worlds report, stamped with the hash its lock records; the
     report must be the one that folder holds where DVC's cache lists it."""
     worlds_md = Path(worlds_md)
-    listed = _listed_md5(Path(cache), recorded_dir(lock, worlds_md.parent.as_posix()), worlds_md.name)
-    if listed is not None and listed != file_md5(worlds_md):
-        raise ValueError(f"{worlds_md} is not the one {lock} records (run `make campaign`)")
     text = worlds_md.read_text().splitlines()
     table = list(itertools.takewhile(lambda line: line.startswith("|"),
                                      itertools.dropwhile(lambda line: not line.startswith("| world family"), text)))
-    return [f"<!-- sources: {worlds_md.parent.as_posix()} md5 {recorded_dir(lock, worlds_md.parent.as_posix())} "
-            f"({Path(lock).as_posix()}), {worlds_md.as_posix()} md5 {file_md5(worlds_md)} -->", "",
+    return [_recorded_sources(worlds_md, lock, cache), "",
             "The low-frequency torque's hypothesis tests (the real flights' above) on simulated worlds of one effect "
             f"each, whose truth the tests never see ([report]({worlds_md.as_posix()})):", "", *table, ""]
 
@@ -402,6 +398,19 @@ def _listed_md5(cache: Path, dir_md5: str, relpath: str) -> str | None:
     return next((e["md5"] for e in json.loads(listing.read_text()) if e["relpath"] == relpath), None)
 
 
+def _recorded_sources(report_md: Path, lock: Path, cache: Path) -> str:
+    """The sources comment of a report of the campaign's pipeline: the hash ``lock`` records for its
+    folder and the report's own. Raises ValueError where the report is not the one that folder
+    holds where DVC's cache lists it."""
+    out = Path(report_md).parent.as_posix()
+    dir_md5, md5 = recorded_dir(lock, out), file_md5(report_md)
+    listed = _listed_md5(Path(cache), dir_md5, Path(report_md).name)
+    if listed is not None and listed != md5:
+        raise ValueError(f"{report_md} is not the one {lock} records (run `make campaign`)")
+    return (f"<!-- sources: {out} md5 {dir_md5} ({Path(lock).as_posix()}), "
+            f"{Path(report_md).as_posix()} md5 {md5} -->")
+
+
 def campaign_section(summary_md: Path, lock: Path, record_json: Path | None = None,
                      cache: Path = Path(".dvc/cache"), worlds_md: Path | None = None) -> str:
     """The campaign section: the headline counts of discovery over hidden worlds and the families'
@@ -410,12 +419,7 @@ def campaign_section(summary_md: Path, lock: Path, record_json: Path | None = No
     cache lists it. With ``worlds_md`` (where it is there), the hypothesis tests' worlds table
     (:func:`worlds_lines`) after them."""
     summary_md = Path(summary_md)
-    out = summary_md.parent.as_posix()
-    dir_md5 = recorded_dir(lock, out)
-    md5 = file_md5(summary_md)
-    listed = _listed_md5(Path(cache), dir_md5, summary_md.name)
-    if listed is not None and listed != md5:
-        raise ValueError(f"{summary_md} is not the one {lock} records (run `make campaign`)")
+    sources = _recorded_sources(summary_md, lock, cache)
     text = summary_md.read_text().splitlines()
     first = next((i for i, line in enumerate(text) if line.startswith("- ")), len(text))
     bullets = list(itertools.takewhile(lambda line: line.startswith("- "), text[first:]))
@@ -423,8 +427,7 @@ def campaign_section(summary_md: Path, lock: Path, record_json: Path | None = No
     start = next((i for i, line in enumerate(text) if line.startswith(head)), len(text))
     table = list(itertools.takewhile(lambda line: line.startswith("|"),
                                      itertools.dropwhile(lambda line: not line.startswith("|"), text[start:])))
-    lines = [CAMPAIGN_BEGIN, f"<!-- sources: {out} md5 {dir_md5} ({Path(lock).as_posix()}), "
-                             f"{summary_md.as_posix()} md5 {md5} -->", ""]
+    lines = [CAMPAIGN_BEGIN, sources, ""]
     if record_json is not None and Path(record_json).exists():
         rec = json.loads(Path(record_json).read_text())
         lines += [f"`make campaign` ({Path(record_json).as_posix()}) took {rec['total_s']:g} s on "
