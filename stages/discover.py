@@ -24,7 +24,7 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     k_M; write ``<discover.out_dir>/model.json`` and ``<discover.report_dir>/`` (report,
     result, figures)."""
     dc = cfg.discover
-    oracle = limit = world = None
+    oracle = limit = held_limit = world = None
     if dc.oracle is not None:
         # the oracle built here, not through the registry of every model (which loads every network)
         options = {k: v for k, v in plain(dc.oracle).items() if k not in ("kind", "artifact", "code")}
@@ -36,6 +36,8 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
         # the limit of a model of the state: the true dynamics without the effects of time
         state = state_effects(effects)
         limit = sim.oracle_of(**{**options, "effects": state, "seed": int(options.get("seed", 0))})
+        # ... and with the angular velocity held: the limit of a model on the paper's physics base
+        held_limit = sim.oracle_of(**{**options, "effects": state, "seed": int(options.get("seed", 0)), "held": True})
     H = int(cfg.eval.horizon)
     bench = protocol.load(cfg.paths.split, horizon=H)
     vehicle = identified_vehicle(vehicle_of(cfg), dc.identified)
@@ -43,7 +45,7 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
     result = discover.run(bench.train, bench.test, vehicle=vehicle, alpha=float(dc.alpha), share=float(dc.share),
                           block=float(dc.block), folds=int(dc.folds), sindy=bool(dc.sindy),
                           delays=tuple(delays), window=int(dc.savgol_window), order=int(dc.savgol_order), horizon=H,
-                          oracle=oracle, limit=limit, inertia_z_range=tuple(cfg.identify.inertia_z_range),
+                          oracle=oracle, limit=limit, held_limit=held_limit, inertia_z_range=tuple(cfg.identify.inertia_z_range),
                           batch_size=int(cfg.eval.batch_size), flights_out=bool(dc.flights_out), progress=True,
                           velocity=str(dc.velocity))
     step = result.model.step

@@ -392,10 +392,11 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     assert [n for n in model["effects"] if not n.startswith("term:")] == wrench
     assert all(f["verdict"] in discover_verdicts for f in result["findings"])
     assert violations(result) == []
-    # beside the oracle, the limit of a model of the state (the oracle without the effects of time)
+    # beside the oracle, the limit of a model of the state (the oracle without the effects of time),
+    # integrated and with ω held
     assert set(result["simerr"]) == {"nominal", "physics", "best_nominal", "discovered", "oracle", "state_limit",
-                                     "sindy"}
-    assert set(result["gap_closed_state_limit"]) == set("pvRw")
+                                     "held_state_limit", "sindy"}
+    assert set(result["gap_closed_state_limit"]) == set("pvRw") == set(result["gap_closed_held_state_limit"])
     scores = json.loads((tiny / "eval" / "discovered" / "scores.json").read_text())
     assert scores["simerr"] == pytest.approx(result["simerr"]["discovered"])
     # the nominal model of discovery is the full physics model (rotor torques integrated) that
@@ -404,6 +405,11 @@ def test_discover_stage_writes_the_augmented_model_and_its_report(tiny):
     assert result["simerr"]["nominal"] == pytest.approx(physics["simerr"], rel=1e-9)
     held = json.loads((tiny / "eval" / "physics" / "scores.json").read_text())
     assert result["simerr"]["physics"] == pytest.approx(held["simerr"], rel=1e-9)
+    # held, the true dynamics predict each window's first angular velocity throughout, as physics
+    # does: the same ω error, and the attitude turned at that rate alike
+    limit = result["simerr"]["held_state_limit"]
+    assert limit["w"] == pytest.approx(held["simerr"]["w"], rel=1e-9)
+    assert limit["R"] == pytest.approx(held["simerr"]["R"], rel=1e-3)
     assert result["simerr"]["best_nominal"] == pytest.approx(
         {q: min(physics["simerr"][q], held["simerr"][q]) for q in "pvRw"}, rel=1e-12)
     # the model integrates the torque equation about the axes the base section chose, and the

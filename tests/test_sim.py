@@ -577,6 +577,26 @@ def test_oracle_is_the_physical_limit(melons):
     assert predictors.predictor("oracle", effects=world)(f.y[:2], f.u[None, :5].repeat(2, 0)).shape == (2, 5, 13)
 
 
+def test_a_held_oracle_keeps_the_angular_velocity_and_turns_at_that_rate():
+    """Held, the oracle's angular velocity stays the window's first and the attitude turns at that
+    constant body rate: q(t) = q0 ⊗ (axis sin(|w| t / 2), cos(|w| t / 2)). Integrated, the
+    gyroscopic torque w x J w of an unequal inertia moves it."""
+    w = torch.tensor([1.0, -0.5, 2.0], dtype=torch.float64)
+    q0 = so3.quat_normalize(torch.tensor([0.1, -0.2, 0.3, 0.9], dtype=torch.float64))
+    y0 = torch.cat((torch.zeros(3), torch.tensor([0.3, -0.2, 0.1]), q0, w)).to(torch.float64)[None]
+    hover = math.sqrt(V.mass * V.gravity / (4 * V.k_f))
+    u = np.full((1, 20, 4), hover)
+    held = sim.oracle({}, vehicle=V, rotor_delay=0.0, held=True)(y0.numpy(), u)
+    free = sim.oracle({}, vehicle=V, rotor_delay=0.0)(y0.numpy(), u)
+    assert np.array_equal(held[0, :, 10:], np.broadcast_to(w.numpy(), (20, 3)))
+    assert np.abs(free[0, -1, 10:] - w.numpy()).max() > 1e-3
+    t = 0.01 * torch.arange(1, 21, dtype=torch.float64)[:, None]
+    n = torch.linalg.norm(w)
+    turn = torch.cat((torch.sin(n * t / 2) * w / n, torch.cos(n * t / 2)), -1)
+    expected = so3.quat_mul(q0.expand(20, 4), turn)
+    assert np.abs(held[0, :, 6:10] - expected.numpy()).max() < 1e-8
+
+
 def test_gusts_are_steps_of_their_stated_size_and_replay_from_the_seed():
     """Gusts hold a level and step to the next: after each step's 0.1 s rise the realisation is
     flat, so with steps every 2 s on average most samples barely move (the smooth turbulence's

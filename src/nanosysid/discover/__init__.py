@@ -138,7 +138,7 @@ def _check_excitation(flights: Sequence[Flight]) -> None:
 def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehicle: Vehicle | None = None,
         alpha: float = 0.01, floor: float = 0.25, share: float = 0.5, delays: Sequence[float] = tuple(np.arange(1, 17) * 0.005),
         window: int = 15, order: int = 3, block: float = 2.0, folds: int = 10, horizon: int = 50,
-        oracle: Any = None, limit: Any = None, analysis: bool = True, sindy: bool = False,
+        oracle: Any = None, limit: Any = None, held_limit: Any = None, analysis: bool = True, sindy: bool = False,
         inertia_z_range: tuple[float, float] | None = None, batch_size: int = 8192, flights_out: bool = False,
         hold_k_m: bool = False, hold_nominal: bool = True, progress: bool = False, diverged_ok: bool = False,
         velocity: str = "position") -> DiscoveryResult:
@@ -160,6 +160,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         oracle: A predictor with the true dynamics (simulated data), scored for reference.
         limit: The limit a model of the state can reach: the true dynamics without the effects
             that are not functions of the state (simulated data), scored for reference.
+        held_limit: The limit of a model that holds the angular velocity as the paper's physics
+            model does: ``limit`` with ``dw/dt = 0`` (simulated data), scored for reference.
         analysis: Also compute where the models disagree (per channel, regime, band, rollout).
         sindy: Also fit and score the plain SINDy discrepancy model (generic terms only, no names).
         inertia_z_range: The yaw inertia's plausible range (kg m²): the yaw inertia correction's
@@ -264,6 +266,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
                   "least_squares": float(v.k_m + search.free_k_m(selection.chosen, selection.delay))}
     if limit is not None:
         result.limit = score(limit)
+    if held_limit is not None:
+        result.held_limit = score(held_limit)
     if sindy:
         result.sindy = sindy_baseline(search, v, test_flights, horizon, batch_size)
     if analysis and diverged is None:

@@ -161,6 +161,9 @@ class DiscoveryResult:
     sindy: dict[str, Any] | None = None
     analysis: dict[str, Any] = field(default_factory=dict)
     limit: protocol.Scores | None = None
+    # the true dynamics of the state with the angular velocity held (dω/dt = 0): the limit of a
+    # model on the paper's physics model's base
+    held_limit: protocol.Scores | None = None
     # entries the selection chose and the reference checks dropped (select.check_reference)
     dropped: list[dict[str, Any]] = field(default_factory=list)
     # one row per training flight left out (nanosysid.discover.stability)

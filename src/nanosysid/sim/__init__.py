@@ -102,7 +102,7 @@ def simulate_flight(
 
 def oracle(effects: Mapping[str, float] | None = None, *, vehicle: Vehicle | None = None, substeps: int = 4,
            dt: float = 0.01, rotor_delay: float | None = None, seed: int = 0,
-           extra_wrench: ExtraWrench | None = None, compile: bool = True) -> Oracle:
+           extra_wrench: ExtraWrench | None = None, compile: bool = True, held: bool = False) -> Oracle:
     """A predictor for :func:`nanosysid.protocol.evaluate` with the true dynamics of the world.
 
     ``rotor_delay`` (s) is the delay of the rotor speeds in the data behind the true ones; by
@@ -110,17 +110,19 @@ def oracle(effects: Mapping[str, float] | None = None, *, vehicle: Vehicle | Non
     the data pipeline have the motor stream aligned already: 0. ``seed`` is the simulation's:
     with it the oracle replays each flight's turbulence. ``extra_wrench`` is the user-supplied
     wrench the flights were simulated with. ``compile``: its derivative runs compiled, as the
-    simulator's step (``sim.flight.compile``); false runs it eagerly.
+    simulator's step (``sim.flight.compile``); false runs it eagerly. ``held``: the angular
+    velocity held (``dw/dt = 0``), the limit of a model that holds it as the paper's physics model
+    does (run eagerly).
     """
     return Oracle(_world(effects), vehicle, dt=dt, substeps=substeps, rotor_delay=rotor_delay, seed=seed,
-                  extra_wrench=extra_wrench, compile=compile)
+                  extra_wrench=extra_wrench, compile=compile, held=held)
 
 
 def oracle_of(*, effects: Mapping[str, float] | None = None, vehicle: Vehicle | Mapping | None = None,
               substeps: int = 4, dt: float = 0.01, rotor_delay: float | None = None, seed: int = 0,
-              compile: bool = True) -> Oracle:
+              compile: bool = True, held: bool = False) -> Oracle:
     """:func:`oracle` from a model's config block (``models.oracle`` less ``kind``, ``artifact``
     and ``code``): the vehicle a mapping (None: the paper's), the effects a mapping."""
     v = Vehicle() if vehicle is None else vehicle if isinstance(vehicle, Vehicle) else Vehicle.from_mapping(vehicle)
     return oracle(None if effects is None else dict(effects), vehicle=v, substeps=substeps, dt=dt,
-                  rotor_delay=rotor_delay, seed=int(seed), compile=compile)
+                  rotor_delay=rotor_delay, seed=int(seed), compile=compile, held=held)

@@ -14,6 +14,11 @@ windows or more (:data:`BLOCK`; fewer would not pay for the compile): one graph 
 the windows in blocks of one size, a user's wrench added outside it. Inductor's code makes the
 eager operations in their order, so the predictions have been the eager ones' bytes on every
 world tried (``tests/test_sim.py``).
+
+Held (``held=True``), it integrates the true dynamics with the angular velocity held
+(``dw/dt = 0``), as the paper's physics model does: the limit of a model on that base, which
+the true dynamics integrated are not (they drift with the turbulence's torque no model knows).
+It then runs eagerly.
 """
 
 from __future__ import annotations
@@ -43,7 +48,7 @@ class Oracle:
 
     def __init__(self, world: World, vehicle: Vehicle | None = None, *, dt: float = 0.01, substeps: int = 4,
                  rotor_delay: float | None = None, seed: int = 0, extra_wrench: ExtraWrench | None = None,
-                 compile: bool = True) -> None:
+                 compile: bool = True, held: bool = False) -> None:
         self.world = world
         # delay (s) of the rotor speeds in u behind the true ones: the telemetry_delay effect for
         # the simulator's direct output, 0 after the data pipeline has aligned the motor stream
@@ -54,9 +59,12 @@ class Oracle:
         self.seed = seed
         self.extra_wrench = extra_wrench
         self.compile = compile
+        self.held = held
         params = self.vehicle.dynamics_kwargs()
         params["inertia"] = world.inertia(self.vehicle)
         self._f = functools.partial(dynamics.quad_dynamics, **params)
+        if held:
+            self._f = functools.partial(_held, self._f)
 
     def _disturbance(self, flight: str | None, t_end: float):
         """The world's realisation of its time-varying effects on one flight, replayed from the
@@ -93,7 +101,7 @@ class Oracle:
         om_next = torch.cat((om[:, 1:], om[:, -1:]), dim=1)
         om_dot = (om_next - om) / self.dt
         disturbance = self._disturbance(flight, t_end)
-        if not (self.compile and len(y) >= BLOCK // 2):
+        if not (self.compile and not self.held and len(y) >= BLOCK // 2):
             return self._finite(self._rollout(self._nature(disturbance), y, om, om_dot, t).numpy())
         # blocks of BLOCK windows compiled (a last one of half a block or more padded to a block),
         # a shorter last one eagerly: one compiled shape, its compile paid where the work is large
@@ -161,6 +169,12 @@ class Oracle:
 
         with quiet_tracing():
             return self._horizon(at, y, om, om_dot, t, keep=n)
+
+
+def _held(f, x, w_rot, **wrench):
+    """``f``'s ``dx/dt (B, 13)`` with the angular velocity's derivative zero (``dw/dt = 0``)."""
+    dx = f(x, w_rot, **wrench)
+    return torch.cat((dx[..., :10], torch.zeros_like(dx[..., 10:])), -1)
 
 
 # windows the compiled derivative takes at once: one shape, one compile, for flights of any
