@@ -126,7 +126,8 @@ def test_campaign_gives_the_same_bytes_with_one_or_two_workers(tmp_path, monkeyp
         # (the tasks are even)
         argv = ["--params", str(params), "campaign.worlds=1", "campaign.chunk=2", "campaign.duration=10.0",
                 "campaign.families.thrust_lag=1", "campaign.families.turbulence=0", "campaign.families.state=0",
-                "campaign.families.gusts=0", "campaign.families.residual_delay=0", "sim.flight.trajectories.yawsweep.duration=6.0", "launcher=local", f"launcher.workers={workers}",
+                "campaign.families.gusts=0", "campaign.families.residual_delay=0", "sim.flight.trajectories.yawsweep.duration=6.0",
+                "sim.flight.compile=false", "launcher=local", f"launcher.workers={workers}",
                 f"campaign.out_dir={tmp_path / str(workers)}"]
         assert run_stage(campaign.main, description="", argv=argv) == 0
     for name in ("summary.json", "worlds.parquet", "summary.md", "families.json"):
