@@ -28,8 +28,8 @@ def gap_closed(result: DiscoveryResult, reference: str = "oracle") -> dict[str, 
     """Share of the gap between the best nominal row's SimErr
     (:attr:`~nanosysid.discover.DiscoveryResult.best_nominal`) and the reference's (``"oracle"``:
     the true dynamics; ``"limit"``: the true dynamics of the state alone; ``"held_limit"``: those
-    with the angular velocity held) the augmented model closes, per quantity (None without the reference, or where it is no better than the best
-    nominal row)."""
+    with the angular velocity held) the augmented model closes, per quantity (None without the
+    reference, or where it is no better than the best nominal row)."""
     if getattr(result, reference) is None:
         return {k: None for k in QUANTITIES}
     ref, best = getattr(result, reference), result.best_nominal
@@ -282,7 +282,6 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
     for i, (label, d) in enumerate(scatter.items(), 1):
         fig_of[label] = f"figures/finding_{i}.png"
         finding_figure(label, d, out / fig_of[label])
-    closed = gap_closed(result)
 
     L: list[str] = ["# Model-discrepancy discovery", ""]
     counts = {v: sum(f.verdict == v for f in result.findings) for v in VERDICTS}
@@ -300,19 +299,11 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
              + " | ".join(_fmt(best[k]) for k in QUANTITIES) + " |")
     L.append("| discovered against the best nominal row | "
              + " | ".join(f"{100 * (result.after.simerr[k] / best[k] - 1):+.1f} %" for k in QUANTITIES) + " |")
-    if result.limit is not None:
-        closed_limit = gap_closed(result, "limit")
-        L.append("| share of the nominal–state-limit gap closed | "
-                 + " | ".join("–" if closed_limit[k] is None else f"{100 * closed_limit[k]:.0f} %" for k in QUANTITIES)
-                 + " |")
-    if result.held_limit is not None:
-        closed_held = gap_closed(result, "held_limit")
-        L.append("| share of the nominal–(state limit, ω held) gap closed | "
-                 + " | ".join("–" if closed_held[k] is None else f"{100 * closed_held[k]:.0f} %" for k in QUANTITIES)
-                 + " |")
-    if result.oracle is not None:
-        L.append("| share of the nominal–oracle gap closed | "
-                 + " | ".join("–" if closed[k] is None else f"{100 * closed[k]:.0f} %" for k in QUANTITIES) + " |")
+    for reference, label in (("limit", "state-limit"), ("held_limit", "(state limit, ω held)"), ("oracle", "oracle")):
+        if getattr(result, reference) is not None:
+            shares = gap_closed(result, reference)
+            L.append(f"| share of the nominal–{label} gap closed | "
+                     + " | ".join("–" if shares[k] is None else f"{100 * shares[k]:.0f} %" for k in QUANTITIES) + " |")
     if result.limit is not None or result.oracle is not None:
         L += ["", "The state limit is the simulator's true dynamics integrated without the effects that are not "
               "functions of the state (the turbulence and the rotors' thrust fluctuation, new in every flight): what "
