@@ -256,14 +256,20 @@ def hypotheses_lines(report_md: Path, sim_md: Path | None = None) -> list[str]:
     return out
 
 
+def _table(lines: list[str], first: str = "|") -> list[str]:
+    """The rows of the first markdown table in ``lines`` whose first row starts with ``first``
+    (none where there is no such table)."""
+    return list(itertools.takewhile(lambda line: line.startswith("|"),
+                                    itertools.dropwhile(lambda line: not line.startswith(first), lines)))
+
+
 def worlds_lines(worlds_md: Path, lock: Path, cache: Path = Path(".dvc/cache")) -> list[str]:
     """The hypothesis tests judged on simulated worlds of one effect each: the table of the
     campaign pipeline's hypothesis_worlds report, stamped with the hash its lock records; the
     report must be the one that folder holds where DVC's cache lists it."""
     worlds_md = Path(worlds_md)
     text = worlds_md.read_text().splitlines()
-    table = list(itertools.takewhile(lambda line: line.startswith("|"),
-                                     itertools.dropwhile(lambda line: not line.startswith("| world family"), text)))
+    table = _table(text, "| world family")
     return [_recorded_sources(worlds_md, lock, cache), "",
             "The low-frequency torque's hypothesis tests (the real flights' above) on simulated worlds of one effect "
             f"each, whose truth the tests never see ([report]({worlds_md.as_posix()})):", "", *table, ""]
@@ -425,8 +431,7 @@ def campaign_section(summary_md: Path, lock: Path, record_json: Path | None = No
     bullets = list(itertools.takewhile(lambda line: line.startswith("- "), text[first:]))
     head = "## A function of the state"
     start = next((i for i, line in enumerate(text) if line.startswith(head)), len(text))
-    table = list(itertools.takewhile(lambda line: line.startswith("|"),
-                                     itertools.dropwhile(lambda line: not line.startswith("|"), text[start:])))
+    table = _table(text[start:])
     lines = [CAMPAIGN_BEGIN, sources, ""]
     if record_json is not None and Path(record_json).exists():
         rec = json.loads(Path(record_json).read_text())
