@@ -34,10 +34,10 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
         world = {k: {"strength": float(s), "described_by": sorted(REGISTRY[k].described_by)}
                  for k, s in effects.items() if float(s)}
         # the limit of a model of the state: the true dynamics without the effects of time
-        state = state_effects(effects)
-        limit = sim.oracle_of(**{**options, "effects": state, "seed": int(options.get("seed", 0))})
+        of_state = {**options, "effects": state_effects(effects), "seed": int(options.get("seed", 0))}
+        limit = sim.oracle_of(**of_state)
         # ... and with the angular velocity held: the limit of a model on the paper's physics base
-        held_limit = sim.oracle_of(**{**options, "effects": state, "seed": int(options.get("seed", 0)), "held": True})
+        held_limit = sim.oracle_of(**of_state, held=True)
     H = int(cfg.eval.horizon)
     bench = protocol.load(cfg.paths.split, horizon=H)
     vehicle = identified_vehicle(vehicle_of(cfg), dc.identified)
