@@ -95,7 +95,7 @@ test: $(STAMP) toolchain-check
 params: $(STAMP)
 	$(BIN)/python -m nanosysid.config compose
 
-# the code deps of every stage in dvc.yaml, from the import graph (after an import changes)
+# every pipeline's code stage and its stages' code deps, from the import graph (after an import changes)
 deps: $(STAMP)
 	$(BIN)/python -m nanosysid.depgraph write
 

@@ -1,18 +1,22 @@
 """DVC's dependencies of every stage are the modules its script imports (the import graph of
 :mod:`nanosysid.depgraph`, which writes them), so the run cache never serves a result computed
 by other code and an edit reruns no stage that does not run it; and discovery never imports the
-simulator. ``python -m nanosysid.depgraph write`` rewrites them after an import changes.
+simulator. Each pipeline's code stage depends on every file its stage scripts import and writes
+one digest per script; every other stage depends on its script's digest.
+``python -m nanosysid.depgraph write`` rewrites them after an import changes.
 """
 
 from __future__ import annotations
 
+import hashlib
 from pathlib import Path
 
 import pytest
 
 import yaml
 
-from nanosysid.depgraph import ONE_MODEL, PIPELINES, imported_files, stages, written_deps
+from nanosysid.depgraph import (CODE_STAGES, DIGESTS, ONE_MODEL, PIPELINES, SELF, digest, digest_path, imported_files,
+                                stages, written_deps)
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -24,11 +28,32 @@ def uncovered(files: set[Path], deps: list[str]) -> list[str]:
                   if not any(f == p or p in f.parents for p in paths))
 
 
-def every_stage(root: Path = ROOT) -> dict[str, tuple[str, list[str]]]:
-    """Every pipeline's stages, :func:`stages`' entries under DVC's names for them (``train``,
-    ``campaign/dvc.yaml:campaign``)."""
-    return {(name if pipeline == "dvc.yaml" else f"{pipeline}:{name}"): entry
-            for pipeline in PIPELINES for name, entry in stages(root, pipeline).items()}
+def every_stage(root: Path = ROOT) -> dict[str, tuple[str, str, list[str]]]:
+    """Every pipeline's stages but its code stage, under DVC's names for them (``train``,
+    ``campaign/dvc.yaml:campaign``): ``(pipeline, script module, deps)``."""
+    return {(name if pipeline == "dvc.yaml" else f"{pipeline}:{name}"): (pipeline, module, deps)
+            for pipeline in PIPELINES for name, (module, deps) in stages(root, pipeline).items() if module != SELF}
+
+
+def code_stage(pipeline: str, root: Path = ROOT) -> tuple[str, list[str], list[str]]:
+    """A pipeline's code stage as its file declares it: the folder its command writes, the
+    scripts it writes a digest of, and its deps."""
+    entry = yaml.safe_load((root / pipeline).read_text())["stages"][CODE_STAGES[pipeline]]
+    head, _, args = entry["cmd"].partition(f"python -m {SELF} digest ")
+    folder, *scripts = args.split()
+    return folder, scripts, entry["deps"]
+
+
+def watched(pipeline: str, deps: list[str], root: Path = ROOT) -> set[str]:
+    """A stage's deps with each digest replaced by the files it names (what the code stage
+    watches for it)."""
+    out = set()
+    for d in deps:
+        if d.startswith(DIGESTS[pipeline] + "/"):
+            out |= {line.split("  ", 1)[1] for line in digest(Path(d).stem, root).splitlines()}
+        else:
+            out.add(d)
+    return out
 
 
 def expanded() -> dict[str, list[str]]:
@@ -41,11 +66,26 @@ def expanded() -> dict[str, list[str]]:
 
 @pytest.mark.parametrize("stage", sorted(every_stage()))
 def test_stage_depends_on_every_module_it_imports(stage):
-    module, deps = every_stage()[stage]
+    pipeline, module, deps = every_stage()[stage]
+    folder, scripts, code = code_stage(pipeline)
+    # the stage depends on its script's digest, which its pipeline's code stage writes
+    assert digest_path(pipeline, module) in deps and folder == DIGESTS[pipeline] and module in scripts, (deps, scripts)
     # a stage that runs one model imports the networks by name at run time: that model's own is
     # its code entry (checked with the resolved stages below), the others are no dependency
-    missing = uncovered(imported_files(module, loaded_by_name=module not in ONE_MODEL), deps)
-    assert not missing, f"stage {stage!r} imports {missing} but does not depend on them"
+    files = imported_files(module, loaded_by_name=module not in ONE_MODEL)
+    missing = uncovered(files, code)
+    assert not missing, f"stage {stage!r} imports {missing} but its pipeline's code stage does not depend on them"
+    # the digest names each of them with the md5 of its bytes, so it changes when any one does
+    named = dict(reversed(line.split("  ", 1)) for line in digest(module).splitlines())
+    assert {ROOT / f for f in named} == files
+    assert all(md5 == hashlib.md5((ROOT / f).read_bytes()).hexdigest() for f, md5 in named.items())
+
+
+@pytest.mark.parametrize("pipeline", PIPELINES)
+def test_the_code_stage_depends_on_its_own_code_and_writes_a_digest_of_every_script(pipeline):
+    _, scripts, code = code_stage(pipeline)
+    assert not uncovered(imported_files(SELF), code)
+    assert sorted(scripts) == sorted({module for _, (p, module, _) in every_stage().items() if p == pipeline})
 
 
 def test_a_stage_of_one_model_depends_on_that_models_code_and_no_other_networks():
@@ -55,8 +95,9 @@ def test_a_stage_of_one_model_depends_on_that_models_code_and_no_other_networks(
     checked = 0
     for stage, deps in expanded().items():
         script, _, name = stage.partition("@")
-        if every_stage()[script][0] not in ONE_MODEL:
+        if script not in every_stage() or every_stage()[script][1] not in ONE_MODEL:
             continue
+        deps = watched(every_stage()[script][0], deps)
         # a stage of the models it names: one (its foreach item), or the window track's
         names = [name] if name else params["window"]["models"]
         own = set()
@@ -70,7 +111,8 @@ def test_a_stage_of_one_model_depends_on_that_models_code_and_no_other_networks(
 
 
 def test_the_check_sees_a_removed_dependency():
-    module, deps = stages()["report"]
+    module, _ = stages()["report"]
+    _, _, deps = code_stage("dvc.yaml")
     assert not uncovered(imported_files(module), deps)
     for dep in ("src/nanosysid/report/tables.py", "src/nanosysid/metrics.py"):  # imported directly, and through another
         assert dep in uncovered(imported_files(module), [d for d in deps if d != dep])
@@ -93,7 +135,7 @@ def test_nothing_trained_or_measured_before_training_imports_discovery_or_the_si
     # an edit to discovery or to the simulated world must not retrain the networks or redo the data chain
     for stage in ("train", "identify", "quality", "split", "extract", "sync", "filter"):
         module, deps = stages()[stage]
-        reached = [d for d in deps if d.startswith(("src/nanosysid/discover", "src/nanosysid/sim/", "src/nanosysid/export"))]
+        reached = [d for d in watched("dvc.yaml", deps) if d.startswith(("src/nanosysid/discover", "src/nanosysid/sim/", "src/nanosysid/export"))]
         assert not reached, f"{stage} depends on {reached}"
 
 
@@ -153,6 +195,8 @@ def fingerprints(root: Path) -> dict[str, str]:
             for dep in stage.deps:
                 if isinstance(dep, ParamsDependency):
                     parts.append((str(dep.def_path), json.dumps(dep.read_params(), sort_keys=True, default=str)))
+                elif str(dep.def_path).startswith("digests/"):  # what the code stage would write there
+                    parts.append((str(dep.def_path), digest(Path(dep.def_path).stem, root)))
                 else:
                     path = Path(dep.fs_path)
                     parts.append((str(dep.def_path), hashlib.md5(path.read_bytes()).hexdigest() if path.is_file()
@@ -180,9 +224,9 @@ def test_adding_the_readmes_example_model_reruns_its_own_stages_the_report_and_t
     for pipeline in PIPELINES:
         (repo / pipeline).write_text(written_deps((repo / pipeline).read_text(), root=repo, pipeline=pipeline))
     # the suite's dependency checks hold in the copy
-    for stage, (module, deps) in every_stage(repo).items():
+    for stage, (pipeline, module, _) in every_stage(repo).items():
         files = imported_files(module, repo, loaded_by_name=module not in ONE_MODEL)
-        paths = [(repo / d).resolve() for d in deps]
+        paths = [(repo / d).resolve() for d in code_stage(pipeline, repo)[2]]
         assert all(any(f == p or p in f.parents for p in paths) for f in files), stage
     after = fingerprints(repo)
     stale = {name for name in after if after[name] != before.get(name)}
@@ -228,19 +272,34 @@ def test_an_ablation_reruns_stages_of_the_source_whose_settings_it_changes_only(
 def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tmp_path, venv_env, module):
     import json
 
+    def stale(status: dict, dep) -> set[str]:
+        return {name.split("@")[0] for name, entries in status.items() for e in entries
+                if isinstance(e, dict) and any(dep(d) and v == "modified" for d, v in e.get("changed deps", {}).items())}
+
     repo, sh = copied(tmp_path, venv_env)
+    importers = {name for name, (_, script, _) in every_stage().items() if ROOT / module in imported_files(script)}
+    pipelines = {name.partition(":")[0] if ":" in name else "dvc.yaml" for name in importers}
+    # the committed code's digests, as the code stages wrote them: nothing is out of date for its code
+    for pipeline in PIPELINES:
+        for script in code_stage(pipeline)[1]:
+            (repo / digest_path(pipeline, script)).parent.mkdir(parents=True, exist_ok=True)
+            (repo / digest_path(pipeline, script)).write_text(digest(script, repo))
+    assert not stale(json.loads(sh("dvc", "status", "--json")), lambda d: True)
     with open(repo / module, "a") as f:
         f.write("\n# changed\n")
-    status = json.loads(sh("dvc", "status", "--json"))
-    stale = {name.split("@")[0] for name, entries in status.items() for e in entries
-             if isinstance(e, dict) and module in e.get("changed deps", {})}
-    importers = {name for name, (script, _) in every_stage().items() if ROOT / module in imported_files(script)}
-    assert stale == importers
+    # `dvc status` names the edited file under the code stages that watch it ...
+    assert stale(json.loads(sh("dvc", "status", "--json")), lambda d: d == module) == {
+        CODE_STAGES[p] if p == "dvc.yaml" else f"{p}:{CODE_STAGES[p]}" for p in pipelines}
+    # ... whose run changes the digests of exactly the scripts that import it
+    for pipeline in PIPELINES:
+        for script in code_stage(pipeline)[1]:
+            (repo / digest_path(pipeline, script)).write_text(digest(script, repo))
+    assert stale(json.loads(sh("dvc", "status", "--json")), lambda d: d.startswith("digests/")) == importers
     if "discover" in module:
         # discovery, what scores, exports and reports its model, and the campaign (its own
         # pipeline) that judges it
-        assert {"discover", "campaign/dvc.yaml:campaign"} <= stale
-        assert not stale & {"train", "identify", "quality", "split", "simulate", "extract"}
+        assert {"discover", "campaign/dvc.yaml:campaign"} <= importers
+        assert not importers & {"train", "identify", "quality", "split", "simulate", "extract"}
 
 
 def test_the_committed_lock_records_the_committed_code():
@@ -268,3 +327,21 @@ def test_the_committed_lock_records_the_committed_code():
                 stale.append(f"{name}: {path}")
     assert md5, "no tracked file dependency found in dvc.lock"
     assert not stale, f"a dvc.lock records other versions of: {', '.join(stale[:10])} (+{max(len(stale) - 10, 0)})"
+
+
+def test_the_code_stage_refuses_to_run_while_its_pipeline_misses_an_import(tmp_path, venv_env):
+    # a script that imports a file its pipeline's code stage does not watch: its digest would
+    # never change with that file, so the stage refuses, names the fix and writes nothing
+    import subprocess
+    import sys
+
+    repo, _ = copied(tmp_path, venv_env)
+    _, scripts, code = code_stage("dvc.yaml", repo)
+    unwatched = next(f"src/nanosysid/{m}.py" for m in ("viz/campaign", "campaign", "report/campaign")
+                     if f"src/nanosysid/{m}.py" not in code)
+    with open(repo / "stages" / "split.py", "a") as f:
+        f.write(f"\nimport {unwatched[4:-3].replace('/', '.')}  # noqa\n")
+    r = subprocess.run([sys.executable, "-m", SELF, "digest", DIGESTS["dvc.yaml"], *scripts], cwd=repo, env=venv_env,
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and "make deps" in r.stderr and "Traceback" not in r.stderr, r.stderr
+    assert not (repo / DIGESTS["dvc.yaml"]).exists()

@@ -1,24 +1,33 @@
 """The stages' code dependencies, from the import graph: what every ``python -m stages.<name>``
-imports of the project, written into the ``deps:`` lists of the pipelines (:data:`PIPELINES`).
+imports of the project.
 
 Imports are read from the source (``ast``), lazy imports inside functions included, and
 followed through the project's own modules (``nanosysid`` and ``stages``); importing a
 submodule runs its packages' ``__init__`` too, and a package that imports its modules by name
 (``importlib.import_module(f"{__name__}.{name}")``, the networks) counts as importing all of
 them, except in a stage that runs one model (:data:`ONE_MODEL`), whose dvc.yaml entry names that
-model's own code. A stage depends on exactly those files, so an edit reruns the stages that run
-the edited code and no other.
+model's own code.
+
+Each pipeline (:data:`PIPELINES`) has one code stage (:data:`CODE_STAGES`). It depends on every
+file the pipeline's stage scripts import, and writes one digest per script
+(``digests/sim/stages.train.txt``: the md5 and path of each file that script imports). Every
+other stage depends on its script's digest in place of the files themselves: an edit reruns the
+code stage, which changes the digests of the scripts that import the edited file and no other,
+so exactly the stages that run the edited code rerun. One entry per stage instead of some forty
+keeps ``dvc.lock`` small, and DVC rewrites it after every stage.
 
 Command line::
 
-    python -m nanosysid.depgraph write    # rewrite the code entries of every pipeline's deps lists
+    python -m nanosysid.depgraph write    # rewrite every pipeline's code stage and code deps
     python -m nanosysid.depgraph check    # exit 1 when a pipeline differs from the import graph
+    python -m nanosysid.depgraph digest digests/sim stages.a stages.b   # the code stage's command
 """
 
 from __future__ import annotations
 
 import argparse
 import ast
+import hashlib
 import re
 import sys
 from functools import lru_cache
@@ -30,15 +39,19 @@ import yaml
 from nanosysid.guard import PIPELINE_FILES
 
 __all__ = ["module_file", "direct_imports", "by_name", "imported_files", "stages", "needed_deps", "written_deps",
-           "ONE_MODEL", "PIPELINES"]
+           "digest", "write_digests", "digest_path", "ONE_MODEL", "PIPELINES", "CODE_STAGES", "DIGESTS"]
 
 OWN = ("nanosysid", "stages")
 ROOT = Path(__file__).resolve().parents[2]  # the project: src/nanosysid/depgraph.py
-CODE = ("src/", "stages/")  # deps entries that are code, which the graph decides
+CODE = ("src/", "stages/", "digests/")  # deps entries that are code, which the graph decides
 # the project's pipelines, each with its own lock: the benchmark's on the simulated world and on the
 # real flights (both `make repro`) and the campaign's (`make campaign`); every stage runs at the
 # project's root (the others' ``wdir: ..``)
 PIPELINES = (*PIPELINE_FILES, "campaign/dvc.yaml")
+# each pipeline's code stage and the folder of digests it writes
+CODE_STAGES = {"dvc.yaml": "code", "rig/dvc.yaml": "rig_code", "campaign/dvc.yaml": "campaign_code"}
+DIGESTS = {"dvc.yaml": "digests/sim", "rig/dvc.yaml": "digests/rig", "campaign/dvc.yaml": "digests/campaign"}
+SELF = "nanosysid.depgraph"  # the code stage's script
 
 
 def _src(root: Path) -> Path:
@@ -139,11 +152,43 @@ def needed_deps(module: str, root: Path = ROOT) -> list[str]:
     return sorted(str(f.relative_to(root)) for f in imported_files(module, root, loaded_by_name=module not in ONE_MODEL))
 
 
+def digest_path(pipeline: str, module: str) -> str:
+    """The digest of a stage script in a pipeline (``digests/sim/stages.train.txt``)."""
+    return f"{DIGESTS[pipeline]}/{module}.txt"
+
+
+def scripts(root: Path = ROOT, pipeline: str = "dvc.yaml") -> list[str]:
+    """The stage scripts of a pipeline file (its code stage's aside), sorted."""
+    return sorted({module for module, _ in stages(root, pipeline).values() if module != SELF})
+
+
+def code_deps(modules: Sequence[str], root: Path = ROOT) -> list[str]:
+    """Every file the ``modules`` import, and the code stage's own: the code stage's deps."""
+    return sorted({d for m in (*modules, SELF) for d in needed_deps(m, root)})
+
+
+def digest(module: str, root: Path = ROOT) -> str:
+    """The md5 and path of every file ``python -m <module>`` imports (:func:`needed_deps`), a line
+    each: it changes exactly when one of them does."""
+    return "".join(f"{hashlib.md5((root / f).read_bytes()).hexdigest()}  {f}\n" for f in needed_deps(module, root))
+
+
+def write_digests(folder: str | Path, modules: Sequence[str], root: Path = ROOT) -> None:
+    """Write ``folder`` (relative to ``root``) whole: one digest per module, ``<module>.txt``."""
+    from nanosysid.dataio import atomic_dir
+
+    with atomic_dir(root / folder) as tmp:
+        for m in modules:
+            (tmp / f"{m}.txt").write_text(digest(m, root))
+
+
 def written_deps(text: str, root: Path = ROOT, pipeline: str = "dvc.yaml") -> str:
-    """A pipeline file's text (``pipeline``, whose text is ``text``) with the code entries of every
-    stage's ``deps`` list replaced by the import graph's (the other entries, data and settings
-    files, kept in their order after them)."""
+    """A pipeline file's text (``pipeline``, whose text is ``text``) with its code entries
+    replaced by the import graph's: the code stage's command names every stage script and its
+    deps are every file they import; every other stage's code entry is its script's digest (the
+    other entries, data and settings files, kept in their order after them)."""
     modules = {name: module for name, (module, _) in stages(root, pipeline).items()}
+    own = scripts(root, pipeline)
     lines = text.splitlines(keepends=True)
     out: list[str] = []
     stage = None
@@ -153,6 +198,11 @@ def written_deps(text: str, root: Path = ROOT, pipeline: str = "dvc.yaml") -> st
         m = re.match(r"^  ([\w@-]+):\s*$", line)
         if m:
             stage = m.group(1)
+        cm = re.match(rf"^(\s+cmd: python -m {re.escape(SELF)} digest)\b", line)
+        if cm and modules.get(stage) == SELF:
+            out.append(f"{cm.group(1)} {DIGESTS[pipeline]} {' '.join(own)}\n")
+            i += 1
+            continue
         dm = re.match(r"^(\s+)deps:\s*$", line)
         if dm and stage in modules:
             out.append(line)
@@ -163,17 +213,43 @@ def written_deps(text: str, root: Path = ROOT, pipeline: str = "dvc.yaml") -> st
                 i += 1
             indent = dm.group(1) + "  - "
             kept = [it for it in items if not it[len(indent):].strip().startswith(CODE)]
-            out += [f"{indent}{d}\n" for d in needed_deps(modules[stage], root)] + kept
+            code = code_deps(own, root) if modules[stage] == SELF else [digest_path(pipeline, modules[stage])]
+            out += [f"{indent}{d}\n" for d in code] + kept
             continue
         out.append(line)
         i += 1
     return "".join(out)
 
 
+def _digest(folder: str, modules: Sequence[str]) -> int:
+    """The code stage: refuse where the pipeline's code stage no longer matches the import graph
+    (a digest of a file the stage does not depend on would never change), else write."""
+    root = Path.cwd()  # the project whose files DVC watches (a stage runs at its root), wherever this module is
+    pipeline = next((p for p, f in DIGESTS.items() if f == folder), None)
+    if pipeline is None:
+        print(f"error: {folder}: no pipeline's digests folder (one of {', '.join(DIGESTS.values())})", file=sys.stderr)
+        return 2
+    text = (root / pipeline).read_text()
+    if written_deps(text, root, pipeline) != text:
+        print(f"error: {pipeline}: its code entries differ from the import graph; run `make deps` "
+              "(python -m nanosysid.depgraph write)", file=sys.stderr)
+        return 2
+    from nanosysid.guard import stage_run
+
+    with stage_run(CODE_STAGES[pipeline]):  # the folder's record names its stage
+        write_digests(folder, modules, root)
+    return 0
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m nanosysid.depgraph", description=__doc__.split("\n")[0])
-    parser.add_argument("command", choices=["write", "check"])
+    parser.add_argument("command", choices=["write", "check", "digest"])
+    parser.add_argument("args", nargs="*", help="digest: the folder, then the stage scripts")
     args = parser.parse_args(argv)
+    if args.command == "digest":
+        if not args.args:
+            parser.error("digest needs the folder and the stage scripts")
+        return _digest(args.args[0], args.args[1:])
     differ = []
     for pipeline in PIPELINES:
         path = ROOT / pipeline
