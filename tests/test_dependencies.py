@@ -276,14 +276,17 @@ def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tm
         return {name.split("@")[0] for name, entries in status.items() for e in entries
                 if isinstance(e, dict) and any(dep(d) and v == "modified" for d, v in e.get("changed deps", {}).items())}
 
+    def run_code_stages():  # their digests of the copy's code, as the code stages write them
+        for pipeline in PIPELINES:
+            for script in code_stage(pipeline)[1]:
+                (repo / digest_path(pipeline, script)).parent.mkdir(parents=True, exist_ok=True)
+                (repo / digest_path(pipeline, script)).write_text(digest(script, repo))
+
     repo, sh = copied(tmp_path, venv_env)
     importers = {name for name, (_, script, _) in every_stage().items() if ROOT / module in imported_files(script)}
     pipelines = {name.partition(":")[0] if ":" in name else "dvc.yaml" for name in importers}
-    # the committed code's digests, as the code stages wrote them: nothing is out of date for its code
-    for pipeline in PIPELINES:
-        for script in code_stage(pipeline)[1]:
-            (repo / digest_path(pipeline, script)).parent.mkdir(parents=True, exist_ok=True)
-            (repo / digest_path(pipeline, script)).write_text(digest(script, repo))
+    # the committed code's digests: nothing is out of date for its code
+    run_code_stages()
     assert not stale(json.loads(sh("dvc", "status", "--json")), lambda d: True)
     with open(repo / module, "a") as f:
         f.write("\n# changed\n")
@@ -291,9 +294,7 @@ def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tm
     assert stale(json.loads(sh("dvc", "status", "--json")), lambda d: d == module) == {
         CODE_STAGES[p] if p == "dvc.yaml" else f"{p}:{CODE_STAGES[p]}" for p in pipelines}
     # ... whose run changes the digests of exactly the scripts that import it
-    for pipeline in PIPELINES:
-        for script in code_stage(pipeline)[1]:
-            (repo / digest_path(pipeline, script)).write_text(digest(script, repo))
+    run_code_stages()
     assert stale(json.loads(sh("dvc", "status", "--json")), lambda d: d.startswith("digests/")) == importers
     if "discover" in module:
         # discovery, what scores, exports and reports its model, and the campaign (its own
