@@ -39,7 +39,7 @@ import yaml
 from nanosysid.guard import PIPELINE_FILES
 
 __all__ = ["module_file", "direct_imports", "by_name", "imported_files", "stages", "needed_deps", "written_deps",
-           "digest", "write_digests", "digest_path", "scripts", "code_deps", "ONE_MODEL", "PIPELINES", "CODE_STAGES",
+           "digest", "write_digests", "digest_path", "code_deps", "ONE_MODEL", "PIPELINES", "CODE_STAGES",
            "DIGESTS", "SELF"]
 
 OWN = ("nanosysid", "stages")
@@ -158,11 +158,6 @@ def digest_path(pipeline: str, module: str) -> str:
     return f"{DIGESTS[pipeline]}/{module}.txt"
 
 
-def scripts(root: Path = ROOT, pipeline: str = "dvc.yaml") -> list[str]:
-    """The stage scripts of a pipeline file (its code stage's aside), sorted."""
-    return sorted({module for module, _ in stages(root, pipeline).values() if module != SELF})
-
-
 def code_deps(modules: Sequence[str], root: Path = ROOT) -> list[str]:
     """Every file the ``modules`` import, and the code stage's own: the code stage's deps."""
     return sorted({d for m in (*modules, SELF) for d in needed_deps(m, root)})
@@ -189,7 +184,7 @@ def written_deps(text: str, root: Path = ROOT, pipeline: str = "dvc.yaml") -> st
     deps are every file they import; every other stage's code entry is its script's digest (the
     other entries, data and settings files, kept in their order after them)."""
     modules = {name: module for name, (module, _) in stages(root, pipeline).items()}
-    own = scripts(root, pipeline)
+    own = sorted(set(modules.values()) - {SELF})  # the stage scripts, the code stage's aside
     lines = text.splitlines(keepends=True)
     out: list[str] = []
     stage = None
