@@ -142,13 +142,23 @@ def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_
     sh("dvc", "queue", "remove", "--queued")
     for name, (change, _) in EXPERIMENTS.items():
         sh("dvc", "exp", "run", "--queue", *SMALL, "-S", change, "-n", name)
-    sh(*shlex.split(start))  # the README's `dvc queue start -j 2`: workers in the background
-    deadline = time.monotonic() + 1200
+    # the README's `dvc queue start -j 2`: workers in the background, which outlive the command
+    # (and hold its output open) until they have been idle a while, so the command's output is
+    # not waited for
+    started = subprocess.run(shlex.split(start), cwd=dvc_repo.root, env=dvc_repo.env, stdout=subprocess.DEVNULL,
+                             stderr=subprocess.DEVNULL)
+    assert started.returncode == 0
+    # an experiment's git ref appears once its worker has collected it (a look at git costs
+    # milliseconds, `dvc queue status` a second and a half of CPU): DVC's status is asked when the
+    # ref is there, or every 15 s for a run that fails
+    deadline, asked = time.monotonic() + 1200, time.monotonic()
     while time.monotonic() < deadline:
-        status = sh("dvc", "queue", "status")
-        if "Queued" not in status and "Running" not in status:
-            break
-        time.sleep(3)
+        done = all(sh("git", "for-each-ref", f"refs/exps/**/{name}").strip() for name in EXPERIMENTS)
+        if done or time.monotonic() - asked > 15:
+            status, asked = sh("dvc", "queue", "status"), time.monotonic()
+            if "Queued" not in status and "Running" not in status:
+                break
+        time.sleep(0.5)
     assert status.count("Success") == len(EXPERIMENTS) and "Failed" not in status, status
     shown = sh(*shlex.split(show))  # the README's view of a sweep: each experiment by name, its setting, its SimErr
     assert all(f"[{name}]" in shown for name in EXPERIMENTS) and "simerr.lstm.R" in shown, shown
