@@ -147,7 +147,7 @@ def test_queued_experiments_rerun_only_what_changed_and_share_the_run_cache(dvc_
     # not waited for
     started = subprocess.run(shlex.split(start), cwd=dvc_repo.root, env=dvc_repo.env, stdout=subprocess.DEVNULL,
                              stderr=subprocess.DEVNULL)
-    assert started.returncode == 0
+    assert started.returncode == 0, f"{start}: exit {started.returncode}"
     # an experiment's git ref appears once its worker has collected it (a look at git costs
     # milliseconds, `dvc queue status` a second and a half of CPU): DVC's status is asked when the
     # ref is there, or every 15 s for a run that fails
