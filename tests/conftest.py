@@ -17,12 +17,16 @@ ROOT = Path(__file__).resolve().parents[1]
 torch.set_num_threads(2 if os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") == "1" else 1)
 
 
-# the longest files first, longest to shortest (summed seconds in `make test` on two cores: about
-# 400-450, then 75-90 each for the next four, 35-65 for the four after): `make test`'s workers
-# take a file each at a time in this order, so the DVC tests start at once, and the files left
-# for the end, when one worker may wait for the other, are the short ones
-FIRST = ("test_dvc.py", "test_pipeline.py", "test_discover.py", "test_fault_repro.py", "test_learned.py",
-         "test_launcher.py", "test_identify.py", "test_numerics.py", "test_sim.py")
+# the longest files first, longest to shortest (summed seconds in a fresh clone's `make test` on
+# two cores: about 320 for the DVC tests, 105 for discovery's, 40-75 each for the next nine, 10-26
+# for the eight after): `make test`'s workers take a file each at a time in this order, so the DVC
+# tests start at once, and the files left for the end, when one worker may wait for the other, are
+# the short ones
+FIRST = ("test_dvc.py", "test_discover.py", "test_learned.py", "test_fault_repro.py", "test_launcher.py",
+         "test_sim.py", "test_pipeline.py", "test_dependencies.py", "test_identify.py", "test_numerics.py",
+         "test_repro.py", "test_fault_signals.py", "test_config.py", "test_consistency.py", "test_recording.py",
+         "test_fault_cache.py", "test_fault_bags.py", "test_fault_settings.py", "test_fault_discover.py",
+         "test_fault_stage_paths.py")
 
 
 def pytest_collection_modifyitems(items):
