@@ -134,7 +134,7 @@ readme: $(STAMP)
 # `make bench NAMES="simulate_batch discover_speed"` reruns only those
 bench: $(STAMP)
 	env $(PINNED) PYTHONPATH=$(CURDIR) $(BIN)/python benchmarks/run.py $(NAMES)
-	$(BIN)/python -m nanosysid.report.readme --sections bench
+	$(BIN)/python -m nanosysid.report.readme --sections bench start
 
 clean-venv:
 	rm -rf $(VENV)

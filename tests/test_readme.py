@@ -67,7 +67,7 @@ def test_readme_start_time_is_the_repro_record(monkeypatch):
     text = (ROOT / "README.md").read_text()
     part = text[text.index(readme.START_BEGIN):text.index(readme.START_END) + len(readme.START_END)]
     assert part == readme.start_section(Path("reports/repro.json"), Path("reports/campaign-repro.json"),
-                                        Path("reports/repro-sim.json"))
+                                        Path("reports/repro-sim.json"), Path("reports/bench.json"))
 
 
 def test_the_start_section_gives_the_simulated_pipelines_own_time_and_refuses_a_record_of_both(tmp_path):
@@ -85,6 +85,13 @@ def test_the_start_section_gives_the_simulated_pipelines_own_time_and_refuses_a_
     assert "(the simulated" not in without
     with pytest.raises(ValueError, match="rig"):
         readme.start_section(tmp_path / "both.json", None, tmp_path / "both.json")
+    # `make bench`'s fresh-clone time of `make test`, its environment build in it: 579.1 s is 9.65 min
+    suite = {"fresh_clone_s": 579.1, "environment_build_s": 28.2, "make_test_s": 550.9}
+    (tmp_path / "bench.json").write_text(json.dumps({"machine": machine, "benchmarks": {"test_suite": {"figures": suite}}}))
+    text = readme.start_section(tmp_path / "both.json", None, None, tmp_path / "bench.json")
+    assert text.count("`make test` took 579.1 s (10 min) in a fresh clone, 28.2 s of it building the environment") == 1
+    (tmp_path / "bench.json").write_text(json.dumps({"machine": machine, "benchmarks": {}}))
+    assert "`make test`" not in readme.start_section(tmp_path / "both.json", None, None, tmp_path / "bench.json")
     # make readme keeps the last record by the run it is of: a run whose rig stages were all cached
     # is of both sources still
     cached = {**alone, "skipped": ["rig/dvc.yaml:rig_fetch"]}
