@@ -19,7 +19,7 @@ torch.set_num_threads(2 if os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1") == "
 
 # the longest files first, longest to shortest (summed seconds in a fresh clone's `make test` on
 # two cores: about 320 for the DVC tests, 105 for discovery's, 40-75 each for the next nine, 10-26
-# for the eight after): `make test`'s workers take a file each at a time in this order, so the DVC
+# for the nine after): `make test`'s workers take a file each at a time in this order, so the DVC
 # tests start at once, and the files left for the end, when one worker may wait for the other, are
 # the short ones
 FIRST = ("test_dvc.py", "test_discover.py", "test_learned.py", "test_fault_repro.py", "test_launcher.py",
