@@ -50,6 +50,20 @@ def test_inertia_columns_are_the_first_order_change_of_the_measured_torque():
     assert effects.LIBRARY["inertia"].values(c, v) == pytest.approx(dJ.tolist(), rel=1e-9)
 
 
+def test_an_inertia_correction_never_gives_a_body_of_no_inertia():
+    # a coefficient c of the acceleration column says the body turns (J - c) / J as fast as the
+    # nominal one; c >= J would be a body of no or negative inertia. Worked by hand: c = J / 2 is a
+    # body twice as heavy (dJ = J); c = J, and anything beyond, the heaviest allowed (5 J: dJ = 4 J);
+    # c = -10 J the lightest (J / 5: dJ = -0.8 J)
+    v = Vehicle()
+    J = np.array(v.inertia)
+    values = effects.LIBRARY["inertia"].values
+    assert values([0.5 * J[0], J[1], -10 * J[2]], v) == pytest.approx([J[0], 4 * J[1], -0.8 * J[2]], rel=1e-12)
+    assert values([2 * J[0], 0.0, 0.0], v) == pytest.approx([4 * J[0], 0.0, 0.0], rel=1e-12)
+    bodies = J + np.array(values([1.0, 1.0, -1.0], v))  # far outside on both sides
+    assert np.all(bodies > 0) and bodies == pytest.approx([5 * J[0], 5 * J[1], 0.2 * J[2]], rel=1e-12)
+
+
 def test_rotor_spread_is_each_rotor_off_by_its_own_share():
     # rotors of k_F (1 + d_i), k_M (1 + d_i) with the d_i averaging zero: the extra thrust and
     # torques, rotor by rotor from the mixer written out by hand (rotors at (+-L/sqrt2, +-L/sqrt2),

@@ -384,8 +384,9 @@ def test_every_effect_is_visible_to_the_nominal_model(melons):
 
 
 def test_flight_layout_truth_and_noise():
-    # the gyro read with its own std per body axis (roll, pitch, yaw); 0 reads the true rate
-    cfg = dataclasses.replace(SHORT, noise=NoiseConfig.from_mapping({"gyro": [0.05, 0.2, 0.0]}))
+    # the gyro read with its own std per body axis (roll, pitch, yaw); 0 reads the true rate (the
+    # vibration's growth with the rotors' acceleration off: one level throughout)
+    cfg = dataclasses.replace(SHORT, noise=NoiseConfig.from_mapping({"gyro": [0.05, 0.2, 0.0], "vibration_ref": 0}))
     f = sim.simulate_flight("square", 2, cfg=cfg, seed=1)
     assert len(f) == 1901 and np.isclose(f.t[-1] - f.t[0], 19.0)
     assert f.name == "square_20250601_run2" and f.trajectory == "square"
@@ -398,6 +399,37 @@ def test_flight_layout_truth_and_noise():
     assert np.allclose(np.linalg.norm(f.y[:, 6:10], axis=1), 1)
     # the accelerometer measures the specific force: about g along body z in hover
     assert abs(np.median(f.extra["true_az_body"]) - V.gravity) < 0.5
+
+
+def test_vibration_grows_with_the_rotors_acceleration():
+    from nanosysid.sim.simulator import vibration_scale
+
+    t = np.arange(0, 2, 0.01)[:, None]
+    # rotors at rest or at a steady speed: the still level
+    assert np.allclose(vibration_scale(np.full((200, 4), 1800.0), 0.01, 500.0), 1.0)
+    # every rotor speeding up or slowing down at 500 rad/s^2 (signs apart): sqrt(1 + 1) throughout
+    ramp = 1800.0 + 500.0 * t * np.array([1, -1, 1, -1])
+    assert np.allclose(vibration_scale(ramp, 0.01, 500.0), np.sqrt(2.0))
+    # two rotors at 1000 rad/s^2, two steady: a mean |dOmega/dt| of 500
+    half = 1800.0 + 1000.0 * t * np.array([1, 0, -1, 0])
+    assert np.allclose(vibration_scale(half, 0.01, 500.0), np.sqrt(2.0))
+    assert np.allclose(vibration_scale(half, 0.01, 0.0), 1.0)  # 0: one level throughout
+
+
+def test_the_accelerometer_bias_is_one_per_power_up():
+    # no white noise: what the accelerometer reads beyond the true specific force is its bias,
+    # constant through a flight, drawn anew for the next
+    noise = NoiseConfig.from_mapping({"accel": 0.0, "accel_bias": [0.05, 0.0, 0.1]})
+    cfg = dataclasses.replace(SHORT, noise=noise)
+    flights = sim.simulate_flights({"chirp": 2}, seed=3, cfg=cfg, progress=False)
+    biases = []
+    for f in flights:
+        err = np.column_stack([f.extra[c] - f.extra[f"true_{c}"] for c in ("ax_body", "ay_body", "az_body")])
+        assert np.ptp(err, axis=0).max() < 1e-12
+        biases.append(err[0])
+    biases = np.array(biases)
+    assert np.all(biases[:, 1] == 0) and np.all(biases[:, [0, 2]] != 0)
+    assert not np.allclose(biases[0], biases[1])
 
 
 TINY = SimConfig.from_mapping({
@@ -630,6 +662,6 @@ def test_a_rotor_brought_to_rest_records_no_speed_below_zero():
     (f,) = sim.simulate_flights([spec], cfg=short_flights_config(20.0), progress=False)
     at_rest = f.u.mean(axis=1) < 100
     assert at_rest.sum() >= 5 and f.u.min() == 0.0
-    # a reading of noise (0.95 rad/s) about a rotor at rest is exactly 0 about half the time
+    # a reading of noise about a rotor at rest is exactly 0 about half the time
     assert 0.3 < (f.u[at_rest] == 0).mean() < 0.7
     protocol.check_flight(f)

@@ -47,6 +47,7 @@ from nanosysid.vehicle import Vehicle
 
 __all__ = ["CHANNELS", "Signals", "Effect", "LIBRARY", "NOMINAL", "DELAY", "TERM_SIGNALS", "signals", "features",
            "wrench", "split_coefficients", "entry", "term_name", "apply_corrections", "refitted_vehicle", "SLOW_TIMES",
+           "INERTIA_SHARE",
            "VBAT_REF", "slow_squares"]
 
 CHANNELS = ("F_x", "F_y", "F_z", "tau_x", "tau_y", "tau_z")
@@ -134,6 +135,20 @@ class Effect:
     def values(self, theta: Sequence[float], vehicle: Vehicle) -> list[float]:
         """The coefficients of the columns as the physical parameters :attr:`params` name."""
         return [float(t) for t in theta] if self.physical is None else self.physical(theta, vehicle)
+
+
+# the body's inertia an inertia correction may give, as shares of the nominal: a fit outside
+# (a fold's few flights telling little of the yaw) is held at the nearer end
+INERTIA_SHARE = (0.2, 5.0)
+
+
+def _inertia_change(theta: Sequence[float], vehicle: Vehicle) -> list[float]:
+    """``dJ`` (kg m², per body axis) from the acceleration columns' coefficients ``c = dJ J / (J +
+    dJ)`` (the true body turns ``J / (J + dJ)`` as fast as the nominal model says), ``J + dJ``
+    held within :data:`INERTIA_SHARE` of ``J``."""
+    lo, hi = INERTIA_SHARE
+    return [float(c * j / (j - c)) for c, j in
+            ((float(np.clip(c, j * (1 - 1 / lo), j * (1 - 1 / hi))), j) for c, j in zip(theta, vehicle.inertia))]
 
 
 def _zero_rows(P: int) -> list[list[Any]]:
@@ -384,9 +399,7 @@ LIBRARY: dict[str, Effect] = {e.name: e for e in (
     Effect("inertia", "the body's inertia off its nominal diagonal: J + diag(dJ)",
            ("dJ_x [kg m²]", "dJ_y [kg m²]", "dJ_z [kg m²]"), _inertia, ("R", "w"), (0, 0, 0), "correction",
            "roll and pitch rates during fast yaw: only the inertia has the gyroscopic w x J w",
-           # the acceleration column's coefficient is dJ J / (J + dJ): the true body turns J / (J + dJ)
-           # as fast as the nominal model says
-           lambda th, vh: [float(c * j / (j - c)) for c, j in zip(th, vh.inertia)],
+           _inertia_change,
            # published values for this airframe class lie up to 83 % above the nominal (yaw)
            1.0),
     Effect("arm", "the rotors' lever arm off its nominal value: L + dL", ("dL [m]",), _arm, ("R", "w"), (0,),

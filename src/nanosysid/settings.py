@@ -150,6 +150,7 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
 LENGTHS: list[tuple[str, tuple[int, ...], str]] = [
     ("*vehicle.inertia", (3,), "three numbers (body axes x, y, z)"),
     ("sim.flight.noise.gyro", (1, 3), "one number, or three (roll, pitch, yaw)"),
+    ("sim.flight.noise.accel_bias", (1, 3), "one number, or three (body axes x, y, z)"),
     ("sim.flight.trajectories.*.center", (3,), "three numbers (x, y, z)"),
     ("sim.flight.trajectories.*.box", (3,), "three numbers (widths along x, y, z)"),
 ]

@@ -42,10 +42,12 @@ from nanosysid.settings import configured
 from nanosysid.sim.simulator import (
     NoiseConfig,
     RawRecord,
+    accel_bias,
     flight_key,
     interp_columns,
     perturb_attitude,
     velocity_drift,
+    vibration_scale,
 )
 from nanosysid.vehicle import Vehicle
 
@@ -199,9 +201,11 @@ def record_flight(
          for j in np.flatnonzero(~drop)],
     )
 
-    # IMU: gyro and accelerometer
-    gyro = w_true + rng.normal(scale=noise.gyro, size=(n, 3))
-    acc = acc_true + rng.normal(scale=noise.accel, size=(n, 3))
+    # IMU: gyro and accelerometer, their noise the airframe's vibration; the accelerometer's bias
+    # is this power-up's
+    vib = vibration_scale(om_true, 1.0 / cfg.onboard_rate, noise.vibration_ref)[:, None]
+    gyro = w_true + vib * rng.normal(scale=noise.gyro, size=(n, 3))
+    acc = acc_true + vib * rng.normal(scale=noise.accel, size=(n, 3)) + accel_bias(noise, rng)
     Imu, QuatT = T["sensor_msgs/msg/Imu"], T["geometry_msgs/msg/Quaternion"]
     cov9 = np.zeros(9)
     recv, drop = wifi(n), lost(n)
@@ -216,7 +220,8 @@ def record_flight(
 
     # motors: the reading stamped at tick j is the turning rotor's speed motor_lag earlier
     motor_lag = cfg.motor_delay + raw.worlds[i].telemetry_delay
-    om_read = interp_columns(tau_all, raw.turning(i), tau_o - motor_lag) + rng.normal(scale=noise.rotor, size=(n, 4))
+    om_read = interp_columns(tau_all, raw.turning(i), tau_o - motor_lag) + vib * rng.normal(scale=noise.rotor,
+                                                                                            size=(n, 4))
     mcfg = topics["motors"]
     counts = np.clip(np.round(om_read * ERPM_PER_RADS / mcfg["erpm_unit"]), 0, mcfg["invalid"] - 1).astype(np.uint16)
     counts[rng.random(counts.shape) < cfg.motor_missed] = mcfg["invalid"]

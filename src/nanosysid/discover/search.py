@@ -12,7 +12,7 @@ from nanosysid.dataio import Flight
 from nanosysid.discover import generic
 from nanosysid.discover.fit import (COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench,
                                     noise_parts, rotor_products)
-from nanosysid.effects import CHANNELS, DELAY, NOMINAL, entry, split_coefficients
+from nanosysid.effects import CHANNELS, DELAY, INERTIA_SHARE, NOMINAL, entry, split_coefficients
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
@@ -204,7 +204,7 @@ def true_torque_grams(search: Search, g: Grams, chosen: Sequence[str], cols: np.
     fitted = base
     for _ in range(iterations):
         c = np.array(split_coefficients([NOMINAL.name, *chosen], fitted.solve(cols))["inertia"])
-        ratio = np.clip((J - c) / J, 0.2, 5.0)  # J / (J + dJ), with dJ = c J / (J - c)
+        ratio = np.clip((J - c) / J, 1 / INERTIA_SHARE[1], 1 / INERTIA_SHARE[0])  # J / (J + dJ), dJ = c J / (J - c)
         new = np.ones((6, g.P))
         new[3:, :] = ratio[:, None]
         new[3:, own] = 1.0

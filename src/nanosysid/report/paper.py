@@ -181,9 +181,10 @@ def identification_markdown(c: Comparison) -> str:
          "The rotor coefficients the identify stage gives (`models/physics/params.json`), their 95 % intervals (from "
          "the flights, or the calibration flights' blocks, as independent repeats), and nature's. The paper's method "
          "(least squares on the closed-loop training flights) is biased towards zero for k_M: the yaw loop cancels the "
-         "yaw disturbances through the very rotor-speed difference the fit regresses on. This world reproduces the "
-         "paper's k_M with the paper's method while its truth is the thrust stands' (5.69 mm of yaw torque per "
-         "newton of thrust).", "",
+         "yaw disturbances through the very rotor-speed difference the fit regresses on. On this world the paper's method "
+         f"gives a k_M {abs(m['paper_method'] / m['paper'] - 1):.0%} "
+         f"{'below' if m['paper_method'] < m['paper'] else 'above'} the paper's, while the world's truth is the thrust "
+         "stands' (5.69 mm of yaw torque per newton of thrust).", "",
          "| coefficient | estimator | estimate | 95 % interval | nature | error |", "|---|---|---|---|---|---|",
          f"| k_F [N s²/rad²] | {f['fit']['estimator']} | {f['identified']:.4g} | {ci(f['fit'])} | {f['nature']:.4g}"
          + ("" if f["nature_thrust"] is None else f" (its thrust per ΣΩ² on these flights: {f['nature_thrust']:.4g})")

@@ -17,6 +17,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 import torch
 import torch.nn.functional as F
+from scipy.ndimage import uniform_filter1d
 from scipy.signal import lfilter
 from tqdm.auto import tqdm
 
@@ -31,10 +32,13 @@ from nanosysid.sim.world import DEFAULT_WORLD, REALISATION_START, ExtraWrench, N
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["SimConfig", "NoiseConfig", "FlightSpec", "RawRecord", "simulate", "simulate_raw", "flights_from_record",
-           "flight_key", "TRUTH_COLUMNS", "collective_thrust_coefficient", "trajectory_reference"]
+           "flight_key", "TRUTH_COLUMNS", "collective_thrust_coefficient", "trajectory_reference", "vibration_scale",
+           "accel_bias"]
 
 log = logging.getLogger(__name__)
 
+# s, the span over which the rotors' acceleration sets the airframe's vibration
+VIBRATION_WINDOW = 0.2
 TRAJECTORY_INDEX = {"square": 0, "random": 1, "chirp": 2, "melon": 3, "yawsweep": 4}
 # truth signals stored beside the published columns
 WRENCH_COLUMNS = ["fx_body", "fy_body", "fz_body", "tx_body", "ty_body", "tz_body"]
@@ -47,7 +51,10 @@ class NoiseConfig:
     error of the onboard velocity estimate (first-order Gauss-Markov: the benchmark's velocity is
     an estimate, not the derivative of the mocap position); defaults and units:
     ``sim.flight.noise`` of ``conf/sim/default.yaml``. ``gyro`` is one std for the three body
-    axes or one per axis (roll, pitch, yaw)."""
+    axes or one per axis (roll, pitch, yaw). The gyro's, the accelerometer's and the rotor
+    speeds' noise is the airframe's vibration: their std grows with how hard the rotors are
+    driven (:func:`vibration_scale`, ``vibration_ref``). ``accel_bias``: std (m/s², per body
+    axis) of the accelerometer's bias, new at each power-up (one draw a flight)."""
 
     pos: float
     vel: float
@@ -57,6 +64,8 @@ class NoiseConfig:
     gyro: float | tuple[float, float, float]
     accel: float
     rotor: float
+    vibration_ref: float
+    accel_bias: float | tuple[float, float, float]
 
     @classmethod
     def from_mapping(cls, cfg: Mapping[str, Any]) -> "NoiseConfig":
@@ -418,7 +427,7 @@ def flights_from_record(raw: RawRecord, *, vehicle: Vehicle, cfg: SimConfig, noi
         acc_true = raw.wrench[i, idx, :3] / vehicle.mass  # specific force in the body frame
         y, u, acc = y_true.copy(), u_rec, acc_true.copy()
         if noise:
-            y, u, acc = _add_noise(y, u, acc, cfg.noise, raw.rngs[i], 1.0 / cfg.output_rate)
+            y, u, acc = _add_noise(y, u, acc, omega_true, cfg.noise, raw.rngs[i], 1.0 / cfg.output_rate)
         extra = {c: acc[:, j] for j, c in enumerate(ACCEL_COLUMNS)}
         truth = np.concatenate((omega_true, y_true, acc_true, raw.wrench[i, idx]), axis=1)
         extra.update({c: truth[:, j].copy() for j, c in enumerate(TRUTH_COLUMNS)})
@@ -449,19 +458,42 @@ def velocity_drift(n: int, noise: NoiseConfig, dt: float, rng: np.random.Generat
     return lfilter([1.0], [1.0, -a], drive, axis=0)
 
 
-def _add_noise(y, u, acc, n: NoiseConfig, rng: np.random.Generator, dt: float):
+def vibration_scale(omega: np.ndarray, dt: float, ref: float) -> np.ndarray:
+    """``(T,)`` factor on the std of the vibration-borne noise (gyro, accelerometer, rotor speeds)
+    at samples ``dt`` s apart of the true rotor speeds ``omega (T, 4)`` rad/s: ``sqrt(1 + (a /
+    ref)²)``, ``a`` the rotors' mean ``|dOmega/dt|`` (rad/s²) averaged over
+    :data:`VIBRATION_WINDOW`. The rig's noise on all three sensors rises from flight to flight
+    with how much its rotor speeds move (reports/rig/world.md), not with their level, which
+    every trajectory holds near hover; ``ref`` 0: one level throughout."""
+    if ref <= 0 or len(omega) < 2:
+        return np.ones(len(omega))
+    a = np.abs(np.gradient(omega, dt, axis=0)).mean(axis=1)
+    a = uniform_filter1d(a, max(1, round(VIBRATION_WINDOW / dt)), mode="nearest")
+    return np.sqrt(1.0 + (a / ref) ** 2)
+
+
+def accel_bias(n: NoiseConfig, rng: np.random.Generator) -> np.ndarray:
+    """``(3,)`` the accelerometer's bias of one power-up (m/s², body frame); none drawn where it
+    is 0 (a world without it keeps its other draws)."""
+    if not np.any(n.accel_bias):
+        return np.zeros(3)
+    return rng.normal(scale=n.accel_bias, size=3)
+
+
+def _add_noise(y, u, acc, omega_true, n: NoiseConfig, rng: np.random.Generator, dt: float):
     T = len(y)
     y = y.copy()
+    g = vibration_scale(omega_true, dt, n.vibration_ref)[:, None]
     y[:, 0:3] += rng.normal(scale=n.pos, size=(T, 3))
     y[:, 3:6] += rng.normal(scale=n.vel, size=(T, 3))
     if n.vel_drift > 0:
         y[:, 3:6] += velocity_drift(T, n, dt, rng)
     y[:, 6:10] = perturb_attitude(y[:, 6:10], n.att, rng)
-    y[:, 10:13] += rng.normal(scale=n.gyro, size=(T, 3))
+    y[:, 10:13] += g * rng.normal(scale=n.gyro, size=(T, 3))
     # a rotor's speed sensor reads a magnitude: a rotor at rest (a slow lag's inverse can ask one to
     # stop) reads 0, never below
-    u = np.maximum(u + rng.normal(scale=n.rotor, size=u.shape), 0.0)
-    acc = acc + rng.normal(scale=n.accel, size=acc.shape)
+    u = np.maximum(u + g * rng.normal(scale=n.rotor, size=u.shape), 0.0)
+    acc = acc + g * rng.normal(scale=n.accel, size=acc.shape) + accel_bias(n, rng)
     return y, u, acc
 
 
