@@ -100,14 +100,14 @@ def compare(world: Mapping[str, Mapping[str, float]], real: Mapping[str, Mapping
 
 # What is known of why a kind of figure is off: where its value in the world comes from
 WHY = {
-    "rotor speed noise": "kept at the sensors' specification (`sim.flight.noise.rotor`): at the rig's level "
-                         "discovery names an arm-length correction on a world without one, the recorded rotor "
-                         "speeds' noise entering both the nominal wrench's columns and the residual (errors in "
-                         "variables the least-squares refit does not undo)",
-    "accelerometer noise": "kept at the vibration the world was built with (`sim.flight.noise.accel`): at the rig's "
-                           "level, ten times lower, discovery on the default world names a slow actuation and a "
-                           "rotor-speed delay the world has not (its thrust fluctuation and the delay the sync "
-                           "stage leaves read as a lag of the thrust once the force is that clear)",
+    "rotor speed noise": "kept at the sensors' specification (`sim.flight.noise.rotor`): at the rig's levels (docs/"
+                         "simulated-world.md, \"The sensors at the rig's levels\") discovery names an inertia "
+                         "correction and a slow actuation on worlds without them, the recorded rotor speeds' noise, "
+                         "largest where the rotors accelerate, entering both those entries' columns and the residual "
+                         "(errors in variables the least-squares fit does not undo)",
+    "accelerometer noise": "kept at the level the world was built with (`sim.flight.noise.accel`), to be set with the "
+                           "rotor speeds' (docs/simulated-world.md gives the rig's levels of the three vibration-borne "
+                           "sensors)",
     "noise": "one level per sensor for every flight (`sim.flight.noise`): the gyro's was raised by the rig's "
              "geometric-mean ratio (0.02 to 0.044 rad/s), but the figure measured after the data chain's filter "
              "grows less than the setting, so the world stays below the rig; the rig's also differs from one "
