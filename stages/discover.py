@@ -9,6 +9,7 @@ from omegaconf import DictConfig
 
 from nanosysid import discover, protocol, sim
 from nanosysid.dataio import atomic_dir
+from nanosysid.discover.fit import ChainFilter
 from nanosysid.discover.model import save_discovered
 from nanosysid.effects import entry
 from nanosysid.identify import identified_vehicle, read_identified
@@ -47,7 +48,8 @@ def main(cfg: DictConfig) -> discover.DiscoveryResult:
                           delays=tuple(delays), window=int(dc.savgol_window), order=int(dc.savgol_order), horizon=H,
                           oracle=oracle, limit=limit, held_limit=held_limit, inertia_z_range=tuple(cfg.identify.inertia_z_range),
                           batch_size=int(cfg.eval.batch_size), flights_out=bool(dc.flights_out), progress=True,
-                          velocity=str(dc.velocity))
+                          velocity=str(dc.velocity), noise_draws=int(dc.noise_draws),
+                          chain=ChainFilter(**plain(dc.chain)))
     step = result.model.step
     effects = {name: {"params": list(entry(name).params), "coefficients": coef}
                for name, coef in step.coefficients().items()}

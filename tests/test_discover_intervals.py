@@ -163,3 +163,27 @@ def test_a_finding_whose_every_interval_holds_zero_is_not_named():
     undetermined([spread, drag, ground, delay])
     assert spread.verdict == "undetermined" and spread.evidence["was"] == "named"
     assert [f.verdict for f in (drag, ground, delay)] == ["named"] * 3
+
+
+def test_the_rotor_speeds_local_noise_is_read_back_through_the_data_chains_filter():
+    # white noise of 5 rad/s for 10 s, then 20 rad/s, on rotors sweeping slowly around hover;
+    # once as recorded, once through the zero-phase Butterworth of the data chain (20 Hz, 4th
+    # order): both give the white noise's std back, away from the step between the two levels
+    from scipy.signal import butter, sosfiltfilt
+
+    from nanosysid.dataio import Flight
+    from nanosysid.discover.fit import ChainFilter, input_noise
+
+    rng = np.random.default_rng(11)
+    t = np.arange(2000) * 0.01
+    slow = 1800.0 + 150.0 * np.sin(2 * np.pi * 0.5 * t)[:, None] * np.array([1.0, -1.0, 0.8, -0.6])
+    std = np.where(t < 10.0, 5.0, 20.0)
+    noise = rng.standard_normal((len(t), 4)) * std[:, None]
+    y = np.zeros((len(t), 13))
+    y[:, 9] = 1.0
+    sos = butter(4, 20.0, "lowpass", fs=100.0, output="sos")
+    for u, chain in ((slow + noise, None), (slow + sosfiltfilt(sos, noise, axis=0), ChainFilter(rotor=20.0))):
+        est = input_noise(Flight("random_20250601_run1", t, u, y), chain)
+        for lo, hi, truth in ((100, 900, 5.0), (1100, 1900, 20.0)):
+            level = np.sqrt(np.mean(est[lo:hi] ** 2))
+            assert abs(level / truth - 1) < 0.06, (chain, truth, level)

@@ -126,6 +126,8 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("discover.identified", TEXT_OR_NULL), ("discover.velocity", ("estimate", "position")),
     ("discover.savgol_window", COUNT), ("discover.savgol_order", NONNEG_COUNT),
     ("discover.delay_step", POSITIVE), ("discover.delay_max", NONNEG),
+    ("discover.chain.accel", NONNEG_OR_NULL), ("discover.chain.gyro", NONNEG_OR_NULL),
+    ("discover.chain.rotor", NONNEG_OR_NULL), ("discover.chain.order", COUNT), ("discover.noise_draws", NONNEG_COUNT),
     ("discover.oracle.dt", POSITIVE), ("discover.oracle.substeps", COUNT), ("discover.oracle.effects.*", NONNEG),
     ("discover.oracle.rotor_delay", NONNEG_OR_NULL), ("discover.oracle.compile", FLAG), ("discover.oracle.*", TEXT),
     ("discover.oracle", FREE),  # a model's block, or null where no oracle applies (real data)

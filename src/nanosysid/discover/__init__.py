@@ -93,7 +93,7 @@ from nanosysid import protocol
 from nanosysid.dataio import Flight, check_distinct, flight_list
 from nanosysid.discover.analysis import disagreement
 from nanosysid.discover.assemble import assemble, sindy_baseline
-from nanosysid.discover.fit import VELOCITIES, with_position_velocity
+from nanosysid.discover.fit import VELOCITIES, ChainFilter, with_position_velocity
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep
 from nanosysid.discover.records import STATELESS, UNDETERMINED, UNSTABLE, VERDICTS, Candidate, DiscoveryResult, Finding, Pick
 from nanosysid.discover.search import Search
@@ -141,7 +141,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         oracle: Any = None, limit: Any = None, held_limit: Any = None, analysis: bool = True, sindy: bool = False,
         inertia_z_range: tuple[float, float] | None = None, batch_size: int = 8192, flights_out: bool = False,
         hold_k_m: bool = False, hold_nominal: bool = True, progress: bool = False, diverged_ok: bool = False,
-        velocity: str = "position") -> DiscoveryResult:
+        velocity: str = "position", chain: ChainFilter | None = None,
+        noise_draws: int = 4) -> DiscoveryResult:
     """Find every disagreement above the noise floor, give it a verdict, and add what explains it.
 
     Args:
@@ -190,6 +191,11 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
             motion-capture position, free of an onboard estimate's slow drift:
             :func:`~nanosysid.discover.fit.with_position_velocity`). The test flights are scored
             as recorded either way.
+        chain: The zero-phase Butterworth low-passes the data chain ran the accelerometer,
+            the gyro and the rotor speeds through (None: none): the shape of their noise.
+        noise_draws: Draws of noise like the rotor speeds' own that measure what it does to
+            the normal equations, taken out of them (errors in variables: the same noise is in
+            the residual and in every column made of the speeds); 0 leaves it in.
     """
     train_flights = given = flight_list(train_flights, "discover.run", "train_flights")
     test_flights = flight_list(test_flights, "discover.run", "test_flights")
@@ -213,7 +219,8 @@ def run(train_flights: Sequence[Flight], test_flights: Sequence[Flight], *, vehi
         thrust, yaw = identify(train_flights, Vehicle(), window=window, polyorder=order)
         v = dataclasses.replace(Vehicle(), k_f=thrust.coef, k_m=yaw.coef)
     search = Search(train_flights, v, window, order, block, folds, hold_k_m=hold_k_m and vehicle is not None,
-                    hold_nominal=hold_nominal and vehicle is not None)
+                    hold_nominal=hold_nominal and vehicle is not None, chain=chain,
+                    noise_draws=noise_draws)
     _check_blocks(search, alpha, block)
     check_distinct([*given, *test_flights])  # a flight fitted on is no test of the fit
     delays = tuple(float(d) for d in delays)

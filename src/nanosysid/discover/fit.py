@@ -32,7 +32,8 @@ from nanosysid.rollout import advance_inputs
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["FlightData", "flight_data", "nominal_wrench", "measured_wrench", "noise_parts",
-           "noise_spectrum", "Grams", "EDGE",
+           "noise_spectrum", "Grams", "EDGE", "ChainFilter", "local_noise", "local_floor", "input_noise", "input_noise_draws",
+           "input_noise_grams",
            "COLUMN_ENTRIES", "VELOCITIES", "with_position_velocity"]
 
 EDGE = 10  # samples dropped at each end of a flight: the smoothing filter's edge effects
@@ -81,33 +82,90 @@ def nominal_wrench(u: np.ndarray, vehicle: Vehicle) -> np.ndarray:
     return w
 
 
-def _white_std(a: np.ndarray) -> np.ndarray:
-    """Std of the white noise on each column of ``a (T, k)``: the median absolute second
-    difference, which the slow flight signal barely moves (``Var(x'') = 6 sigma²`` for white
-    noise; 0.6745 turns a median absolute value into a std)."""
-    d2 = np.diff(a, n=2, axis=0)
-    return np.median(np.abs(d2), axis=0) / 0.6745 / np.sqrt(6.0)
+@dataclass(frozen=True)
+class ChainFilter:
+    """The zero-phase Butterworth low-passes the data chain ran each signal through (cut-off
+    Hz; None: not filtered), all of one ``order``: the shape of each signal's noise."""
+
+    accel: float | None = None
+    gyro: float | None = None
+    rotor: float | None = None
+    order: int = 4
+
+    def response(self, signal: str, dt: float, n: int = 201) -> np.ndarray:
+        """Impulse response of ``signal``'s filter, ``(n,)`` centred (a unit impulse: none)."""
+        b = np.zeros(n)
+        b[n // 2] = 1.0
+        cutoff = getattr(self, signal)
+        if not cutoff:
+            return b
+        from scipy.signal import butter, sosfiltfilt
+
+        return sosfiltfilt(butter(int(self.order), float(cutoff), "lowpass", fs=1.0 / dt, output="sos"), b)
+
+    def apply(self, signal: str, a: np.ndarray, dt: float) -> np.ndarray:
+        """``a`` through ``signal``'s filter along axis 0."""
+        cutoff = getattr(self, signal)
+        if not cutoff:
+            return a
+        from scipy.signal import butter, sosfiltfilt
+
+        return sosfiltfilt(butter(int(self.order), float(cutoff), "lowpass", fs=1.0 / dt, output="sos"), a, axis=0)
 
 
-def noise_parts(flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int) -> np.ndarray:
-    """Std of the measurement noise in each channel of the smoothed residual, ``(2, 6)`` in N and
-    N m: the part through the Savitzky-Golay smoothing (the accelerometer's, the nominal wrench's
-    from the recorded rotor speeds) and the part through its derivative (the gyro's), each
-    estimated from the data themselves."""
+# s: the span over which a signal's noise level is taken as constant (the rotors' vibration
+# moves it within a flight)
+NOISE_SPAN = 0.3
+
+
+def local_noise(a: np.ndarray, dt: float, response: np.ndarray) -> np.ndarray:
+    """Std of the white noise on each column of ``a (T, k)`` at each sample, before the filter
+    of impulse response ``response`` (a unit impulse: unfiltered): the root mean square second
+    difference over :data:`NOISE_SPAN` s (the flight's slow motion barely moves a second
+    difference), turned into the std of the white noise through the norm of the second
+    difference and the filter together."""
+    from scipy.ndimage import uniform_filter1d
+
+    through_d2 = float(np.sqrt((np.convolve(response, [1.0, -2.0, 1.0]) ** 2).sum()))
+    span = max(3, int(round(NOISE_SPAN / dt)) | 1)
+    level = np.sqrt(uniform_filter1d(np.diff(a, n=2, axis=0) ** 2, span, axis=0, mode="nearest")) / through_d2
+    return np.concatenate([level[:1], level, level[-1:]])  # a second difference's sample is its middle one
+
+
+def _through(response: np.ndarray, kernel: np.ndarray) -> float:
+    """The std of white noise of unit std through ``response``, then ``kernel``."""
+    return float(np.sqrt((np.convolve(response, kernel) ** 2).sum()))
+
+
+def local_floor(flight: Flight, vehicle: Vehicle, window: int, order: int,
+                chain: ChainFilter | None = None) -> np.ndarray:
+    """Variance of the measurement noise in each channel of the smoothed residual at each sample,
+    ``(T, 2, 6)`` in N² and N² m²: the part through the Savitzky-Golay smoothing (the
+    accelerometer's, the nominal wrench's from the recorded rotor speeds) and the part through
+    its derivative (the gyro's), each from the sample's local level (:func:`local_noise`: the
+    noise grows where the rotors vibrate) through the data chain's filters (``chain``)."""
     from scipy.signal import savgol_coeffs
 
-    dt = float(np.median(np.diff(flights[0].t)))
-    smooth = np.sqrt((savgol_coeffs(window, order) ** 2).sum())
-    deriv = np.sqrt((savgol_coeffs(window, order, deriv=1, delta=dt) ** 2).sum())
-    acc, gyro, nom = [], [], []
-    for f in flights:
-        acc.append(_white_std(np.column_stack([f.extra[c] for c in ("ax_body", "ay_body", "az_body")])))
-        gyro.append(_white_std(f.y[:, 10:13]))
-        nom.append(_white_std(nominal_wrench(f.u, vehicle)))
-    acc, gyro, nom = (np.median(a, axis=0) for a in (acc, gyro, nom))
-    smoothed = np.hypot(np.concatenate([vehicle.mass * acc, np.zeros(3)]), nom) * smooth
-    differentiated = np.concatenate([np.zeros(3), np.asarray(vehicle.inertia) * gyro * deriv])
-    return np.stack([smoothed, differentiated])
+    chain = chain or ChainFilter()
+    dt = float(np.median(np.diff(flight.t)))
+    smooth, deriv = savgol_coeffs(window, order), savgol_coeffs(window, order, deriv=1, delta=dt)
+    out = np.zeros((len(flight.t), 2, 6))
+    a = np.column_stack([flight.extra[c] for c in ("ax_body", "ay_body", "az_body")])
+    b = chain.response("accel", dt)
+    out[:, 0, :3] = (vehicle.mass * local_noise(a, dt, b) * _through(b, smooth)) ** 2
+    b = chain.response("rotor", dt)
+    out[:, 0] += (local_noise(nominal_wrench(flight.u, vehicle), dt, b) * _through(b, smooth)) ** 2
+    b = chain.response("gyro", dt)
+    out[:, 1, 3:] = (np.asarray(vehicle.inertia) * local_noise(flight.y[:, 10:13], dt, b) * _through(b, deriv)) ** 2
+    return out
+
+
+def noise_parts(flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int,
+                chain: ChainFilter | None = None) -> np.ndarray:
+    """Std of the measurement noise in each channel of the smoothed residual, ``(2, 6)`` in N and
+    N m, its two parts (:func:`local_floor`) averaged in variance over every sample of every
+    flight: estimated from the data themselves."""
+    return np.sqrt(np.concatenate([local_floor(f, vehicle, window, order, chain) for f in flights]).mean(axis=0))
 
 
 def noise_spectrum(parts: np.ndarray, window: int, order: int, dt: float, n: int) -> np.ndarray:
@@ -145,8 +203,11 @@ class FlightData:
 
 
 def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int = 15, order: int = 3,
-                measured: np.ndarray | None = None) -> FlightData:
-    """The residual and the candidates' features of a flight, rotor speeds advanced by ``delay``."""
+                measured: np.ndarray | None = None, force_bias: bool = False) -> FlightData:
+    """The residual and the candidates' features of a flight, rotor speeds advanced by ``delay``;
+    ``force_bias``: the force channels' flight means taken out of the residual and the columns
+    (an accelerometer's bias is new at each power-up: a constant force of the flight's own that
+    no effect makes, told apart from the effects by how they vary within the flight)."""
     dt = float(np.median(np.diff(flight.t)))
     u = advance_inputs(torch.from_numpy(flight.u)[None], delay / dt)[0].numpy()  # read delay later
     om_dot = _smooth(u, window, order, deriv=1, delta=dt)
@@ -160,12 +221,16 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
     # column, so each entry's are the same as smoothed alone), then cut into the entries' views
     every = _smooth(effects.features(COLUMN_ENTRIES, x, om, od, vehicle, s_slow=slow, vbat=vbat).numpy(),
                     window, order)[EDGE:-EDGE]
+    if force_bias:
+        every[:, :3] -= every[:, :3].mean(axis=0)
     feats = dict(zip(COLUMN_ENTRIES, np.split(every, _COLUMN_ENDS[:-1], axis=-1)))
     sg = effects.signals(x, om, od)
     terms = np.column_stack([torch.as_tensor(fn(sg, vehicle)).numpy() * np.ones(len(flight))
                              for _, fn in effects.TERM_SIGNALS.values()])
-    return FlightData(flight.name, r[EDGE:-EDGE], feats, _smooth(terms, window, order)[EDGE:-EDGE],
-                      flight.t[EDGE:-EDGE])
+    r = r[EDGE:-EDGE]
+    if force_bias:
+        r[:, :3] -= r[:, :3].mean(axis=0)
+    return FlightData(flight.name, r, feats, _smooth(terms, window, order)[EDGE:-EDGE], flight.t[EDGE:-EDGE])
 
 
 def rotor_products(flight: Flight, t: np.ndarray, delay: float, *, window: int = 15, order: int = 3) -> np.ndarray:
@@ -184,6 +249,60 @@ def rotor_products(flight: Flight, t: np.ndarray, delay: float, *, window: int =
     cols = _smooth(cols, window, order)
     idx = np.clip(np.searchsorted(flight.t, t - 1e-9), 0, len(flight.t) - 1)
     return cols[idx]
+
+
+def input_noise(flight: Flight, chain: ChainFilter | None = None) -> np.ndarray:
+    """Std of the white noise each rotor speed carried before the data chain's filter (rad/s),
+    at each sample of ``flight``, ``(T,)``: :func:`local_noise`, the four rotors' variances
+    averaged."""
+    dt = float(np.median(np.diff(flight.t)))
+    return np.sqrt((local_noise(flight.u, dt, (chain or ChainFilter()).response("rotor", dt)) ** 2).mean(axis=1))
+
+
+def input_noise_draws(flight: Flight, vehicle: Vehicle, delay: float, *, window: int, order: int,
+                      chain: ChainFilter | None, draws: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """What the rotor speeds' noise does to the columns and the residual: ``draws`` draws of
+    noise like the flight's own (:func:`input_noise`, through ``chain``'s rotor filter), each carried
+    through every step the recorded speeds take (the delay, the squares' slow history, the
+    smoothing) to :data:`COLUMN_ENTRIES`' columns ``(draws, T, 6, P)`` and the residual
+    ``(draws, T, 6)``, at the regression samples. Each is half the difference of the speeds plus
+    and minus the draw: the noise's first-order effect, its mean square part cancelled."""
+    chain = chain or ChainFilter()
+    dt = float(np.median(np.diff(flight.t)))
+    std = input_noise(flight, chain)
+    rng = np.random.default_rng(seed)
+    x = torch.from_numpy(np.ascontiguousarray(flight.y))
+    vbat = flight.extra.get("vbat")
+    vbat = None if vbat is None or not np.all(np.isfinite(vbat)) else torch.from_numpy(np.asarray(vbat, dtype=float))
+
+    def columns(u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        om = advance_inputs(torch.from_numpy(u)[None], delay / dt)[0]
+        od = torch.from_numpy(_smooth(om.numpy(), window, order, deriv=1, delta=dt))
+        slow = effects.slow_squares(om[None], dt)[0]
+        f = effects.features(COLUMN_ENTRIES, x, om, od, vehicle, s_slow=slow, vbat=vbat).numpy()
+        return _smooth(f, window, order)[EDGE:-EDGE], -_smooth(nominal_wrench(om.numpy(), vehicle), window, order)[EDGE:-EDGE]
+
+    dx, dr = [], []
+    for _ in range(draws):
+        noise = chain.apply("rotor", rng.standard_normal(flight.u.shape) * std[:, None], dt)
+        (xp, rp), (xm, rm) = columns(flight.u + noise), columns(flight.u - noise)
+        dx.append((xp - xm) / 2)
+        dr.append((rp - rm) / 2)
+    return np.stack(dx), np.stack(dr)
+
+
+def input_noise_grams(draws: Sequence[tuple[np.ndarray, np.ndarray]], weights: np.ndarray, blocks: np.ndarray,
+                      folds: int) -> "Grams":
+    """What the rotor speeds' noise adds to each block's normal equations, in expectation, from
+    every flight's :func:`input_noise_draws` (flights in order): ``E[dX^T dX]`` to the Gram and
+    ``E[dX^T dr]`` to the moments. The same noise enters the residual and the columns made of
+    the rotor speeds (errors in variables), so least squares credits a column with it, most
+    where the speeds are noisiest; taking this away leaves the normal equations of noise-free
+    columns."""
+    n = draws[0][0].shape[0]
+    X = np.concatenate([dx.transpose(1, 0, 2, 3) for dx, _ in draws]).reshape(-1, 6, draws[0][0].shape[-1])
+    y = np.concatenate([dr.transpose(1, 0, 2) for _, dr in draws]).reshape(-1, 6)
+    return Grams(X / np.sqrt(n), y / np.sqrt(n), weights, np.repeat(blocks, n), folds)
 
 
 def _smooth(a: np.ndarray, window: int, order: int, deriv: int = 0, delta: float = 1.0) -> np.ndarray:
@@ -240,6 +359,16 @@ class Grams:
         self.folds = folds
         self.fixed_values: dict[int, float] = {}
         self.Gt, self.ht, self.et = self.G.sum(1), self.h.sum(1), self.e.sum(1)  # channels summed
+
+    def minus(self, noise: "Grams") -> "Grams":
+        """These normal equations with ``noise``'s Gram and moments taken away (its sums of
+        squares kept: every score stays in the units of the noise floor the weights set)."""
+        return self._like(self.G - noise.G, self.h - noise.h, self.e)
+
+    def per_block(self, scale: np.ndarray) -> "Grams":
+        """These normal equations with each block's channels weighted again: channel ``c`` of
+        block ``b`` times ``scale[b, c]`` in variance (``scale`` ``(B, 6)``)."""
+        return self._like(self.G * scale[:, :, None, None], self.h * scale[:, :, None], self.e * scale)
 
     def _like(self, G: np.ndarray, h: np.ndarray, e: np.ndarray) -> "Grams":
         g = object.__new__(Grams)

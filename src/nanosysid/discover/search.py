@@ -10,8 +10,8 @@ import numpy as np
 
 from nanosysid.dataio import Flight
 from nanosysid.discover import generic
-from nanosysid.discover.fit import (COLUMN_ENTRIES, FlightData, Grams, block_ids, flight_data, measured_wrench,
-                                    noise_parts, rotor_products)
+from nanosysid.discover.fit import (COLUMN_ENTRIES, EDGE, ChainFilter, FlightData, Grams, block_ids, flight_data,
+                                    input_noise_draws, input_noise_grams, local_floor, measured_wrench, rotor_products)
 from nanosysid.effects import CHANNELS, DELAY, INERTIA_SHARE, NOMINAL, entry, split_coefficients
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
@@ -23,8 +23,16 @@ class Search:
     """Regression data and block normal equations per delay, built once and shared by every round."""
 
     def __init__(self, flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int, block: float,
-                 folds: int, hold_k_m: bool = False, hold_nominal: bool = False) -> None:
+                 folds: int, hold_k_m: bool = False, hold_nominal: bool = False,
+                 chain: ChainFilter | None = None, noise_draws: int = 4, force_bias: bool = True) -> None:
         self.flights, self.vehicle, self.window, self.order = list(flights), vehicle, window, order
+        # the filters the data chain ran the sensors through (the shape of their noise), and how
+        # many draws of the rotor speeds' noise measure what it adds to the normal equations
+        # (errors in variables; 0: left in)
+        self.chain, self.noise_draws = chain or ChainFilter(), noise_draws
+        self._noise_grams: Grams | None = None
+        # the accelerometer's bias, new each flight: the force channels' flight means left out
+        self.force_bias = force_bias
         # k_M as given (the identify stage's, by instrumental variables where it could): a least
         # squares refit on closed-loop flights brings back the bias that estimator removes
         self.hold_k_m = hold_k_m
@@ -35,7 +43,8 @@ class Search:
         self._parent: Search | None = None
         self._skip = -1
         self.measured = [measured_wrench(f, vehicle, window, order) for f in self.flights]
-        self.noise_parts = noise_parts(self.flights, vehicle, window, order)
+        local = [local_floor(f, vehicle, window, order, self.chain) for f in self.flights]
+        self.noise_parts = np.sqrt(np.concatenate(local).mean(axis=0))
         self.noise = np.hypot(*self.noise_parts)
         self.weights = 1.0 / np.maximum(self.noise, 1e-12)
         self._data: dict[float, list[FlightData]] = {}
@@ -44,6 +53,14 @@ class Search:
         dt = float(np.median(np.diff(self.flights[0].t)))
         self.blocks = block_ids(self.data(0.0), max(1, int(round(block / dt))))
         n_blocks = int(self.blocks.max()) + 1
+        # each block's noise variance per channel, a share of the mean's: the rotors' vibration
+        # makes a block of sharp corners several times noisier than one of a slow sweep, and
+        # every fit and test weighs a block by its own noise
+        var = np.concatenate([v[EDGE:-EDGE].sum(axis=1) for v in local])
+        counts = np.bincount(self.blocks, minlength=n_blocks)
+        self.block_noise = np.stack([np.bincount(self.blocks, weights=var[:, c], minlength=n_blocks)
+                                     for c in range(6)], axis=1) / np.maximum(counts, 1)[:, None]
+        self.block_noise /= np.maximum(self.noise ** 2, 1e-300)
         if n_blocks < 4:
             raise DataError(f"discover: the training flights make {n_blocks} blocks of {block:g} s; at least 4 are "
                             "needed to hold some out (give longer flights or a shorter discover.block)")
@@ -68,7 +85,8 @@ class Search:
         sub._blocks_kept = np.unique(old)
         sub.blocks = np.searchsorted(sub._blocks_kept, old)
         sub.folds = min(self.folds, len(sub._blocks_kept) // 2)
-        sub._data, sub._grams, sub._terms, sub._fit_grams = {}, {}, {}, {}
+        sub.block_noise = self.block_noise[sub._blocks_kept]
+        sub._data, sub._grams, sub._terms, sub._fit_grams, sub._noise_grams = {}, {}, {}, {}, None
         return sub
 
     @property
@@ -81,7 +99,8 @@ class Search:
         if self._parent is not None:
             return [d for i, d in enumerate(self._parent.data(key)) if i != self._skip]
         if key not in self._data:
-            self._data[key] = [flight_data(f, self.vehicle, key, window=self.window, order=self.order, measured=m)
+            self._data[key] = [flight_data(f, self.vehicle, key, window=self.window, order=self.order, measured=m,
+                                           force_bias=self.force_bias)
                                for f, m in zip(self.flights, self.measured)]
         return self._data[key]
 
@@ -90,12 +109,29 @@ class Search:
         if self._parent is not None and key not in self._grams:
             self._grams[key] = self._parent.grams(key).subset(self._blocks_kept, self.folds)
         if key not in self._grams:
-            d = self.data(key)
-            X = np.concatenate([np.concatenate([fd.features[n] for n in COLUMN_ENTRIES], axis=-1) for fd in d])
-            y = np.concatenate([fd.r for fd in d])
-            g = Grams(X, y, self.weights, self.blocks, self.folds)
+            g = self._free_grams(key)
             self._grams[key] = g.fixed(int(self.offsets[NOMINAL.name][1]), 0.0) if self.hold_k_m else g
         return self._grams[key]
+
+    def _free_grams(self, delay: float) -> Grams:
+        """The normal equations of every column at ``delay``, the rotor speeds' noise taken out."""
+        d = self.data(delay)
+        X = np.concatenate([np.concatenate([fd.features[n] for n in COLUMN_ENTRIES], axis=-1) for fd in d])
+        y = np.concatenate([fd.r for fd in d])
+        g = Grams(X, y, self.weights, self.blocks, self.folds)
+        g = g.minus(self.input_noise_grams()) if self.noise_draws else g
+        return g.per_block(1.0 / np.maximum(self.block_noise, 1e-12))
+
+    def input_noise_grams(self) -> Grams:
+        """What the rotor speeds' noise adds to the normal equations (:func:`input_noise_grams`),
+        measured once, at no delay: a shift of a few samples moves the columns' dependence on
+        the speeds by less than the draws' own scatter."""
+        if self._noise_grams is None:
+            draws = [input_noise_draws(f, self.vehicle, 0.0, window=self.window, order=self.order,
+                                       chain=self.chain, draws=self.noise_draws, seed=i)
+                     for i, f in enumerate(self.flights)]
+            self._noise_grams = input_noise_grams(draws, self.weights, self.blocks, self.folds)
+        return self._noise_grams
 
     def fit_grams(self, delay: float) -> Grams:
         """The normal equations the model's coefficients are fitted with: :meth:`grams`, with k_F
@@ -114,10 +150,7 @@ class Search:
     def free_k_m(self, names: Sequence[str], delay: float) -> float:
         """The k_M correction a least-squares refit alongside ``names`` would make (N m s²/rad²),
         reported beside the one held."""
-        d = self.data(delay)
-        X = np.concatenate([np.concatenate([fd.features[n] for n in COLUMN_ENTRIES], axis=-1) for fd in d])
-        g = Grams(X, np.concatenate([fd.r for fd in d]), self.weights, self.blocks, self.folds)
-        return float(g.solve(self.cols(names))[1])
+        return float(self._free_grams(delay).solve(self.cols(names))[1])
 
     def terms(self, delay: float) -> tuple[generic.TermLibrary, np.ndarray]:
         """The generic terms' library and their values on every sample ``(N, M)``."""

@@ -13,7 +13,7 @@ import numpy as np
 
 from nanosysid.discover import generic
 from nanosysid.discover.records import STATELESS, UNDETERMINED, Finding
-from nanosysid.discover.sources import REPEATS, Pairs, source
+from nanosysid.discover.sources import REPEATS, SOURCES, Pairs, source
 from nanosysid.discover.search import Search, channels_of, true_torque_grams
 from nanosysid.discover.select import Selection
 from nanosysid.discover.stats import half_width, jackknife, pvalue
@@ -239,9 +239,14 @@ STATELESS_FLOOR = 1.0
 
 
 def _saturated(search: Search, delay: float) -> np.ndarray:
-    """The weighted residual ``(N, 6)`` left by every library entry of the state fitted at once."""
+    """The weighted residual ``(N, 6)`` left by every library entry of the state fitted at once,
+    k_F and k_M held as the model holds them (a refit on closed-loop flights scales the rotors'
+    torque down by the disturbance the controller answers with it)."""
     names = [n for n in COLUMN_ENTRIES[1:] if not entry(n).needs]
-    return search.residual(names, delay)[0]
+    return search.residual(names, delay, model=True)[0]
+
+
+TIME = SOURCES[1]
 
 
 def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, total: float,
@@ -249,57 +254,70 @@ def stateless(left: np.ndarray, search: Search, alpha: float, floor: float, tota
     """The channels whose residual ``left`` (weighted: noise floors) stays above the noise after
     the entries and the generic terms of the state: the one-sided Wilcoxon test that the blocks'
     mean squares exceed 1 (the noise's), Bonferroni over the six channels, and a size of at least
-    ``floor`` (the root of the excess mean square), also after every state entry of the library
-    fitted at once, the generic terms and the rotor speeds one by one
-    (:func:`nanosysid.discover.fit.rotor_products`) on what they leave (else it is an unnamed
-    function of the state, none of whose parts was significant alone). Each is a finding "not a
-    function of the state", with the frequency band holding the middle half of its power and,
-    given runs of one reference (``pairs``), what it is a function of instead
-    (:func:`nanosysid.discover.sources.source`); one that repeats with the reference is unnamed."""
+    ``floor`` (the root of the excess mean square). Given runs of one reference (``pairs``),
+    what it is a function of (:func:`nanosysid.discover.sources.source`): one that does not
+    repeat with the reference is of time; one that repeats is unnamed. Without that answer, it
+    must also stay above the noise after every state entry of the library fitted at once, the
+    generic terms and the rotor speeds one by one (:func:`nanosysid.discover.fit.rotor_products`)
+    on what they leave (else it is an unnamed function of the state, none of whose parts was
+    significant alone). Each is a finding "not a function of the state", with the frequency
+    band holding the middle half of its power."""
     B = int(search.blocks.max()) + 1
     counts = np.bincount(search.blocks, minlength=B)
     dt = float(np.median(np.diff(search.flights[0].t)))
     out = []
     saturated = None
 
-    def above(x):
+    def above(x, c):
+        # each block against its own noise (a block of sharp corners is several times noisier
+        # than one of a slow sweep): its mean square over the one its noise alone would give
         ms = np.bincount(search.blocks, weights=x ** 2, minlength=B) / np.maximum(counts, 1)
-        excess = (ms - 1.0) * counts
+        excess = (ms / search.block_noise[:, c] - 1.0) * counts
         z, p = pvalue(excess)
         return excess, z, min(1.0, 6 * p), float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()))
 
     least = max(floor, STATELESS_FLOOR)
     for c in range(6):
-        excess, z, p, size = above(left[:, c])
+        excess, z, p, size = above(left[:, c], c)
         if p > alpha or size < least:
             continue
-        # before "not a function of the state": every state entry of the library at once (an
-        # inertia, a torque scale, the drags and rotor terms together can leave what none alone
-        # was significant for), with the generic terms on what they leave
-        if saturated is None:
-            saturated = _saturated(search, delay)
-            rotors = search.rotor_products(delay)
-            rotors = rotors / np.maximum(np.abs(rotors).max(axis=0), 1e-300)
-        sat = saturated[:, c] - search.terms(delay)[1] @ generic.sparse_fit(search.terms(delay)[1],
-                                                                            saturated[:, [c]])[0]
-        # and the rotor speeds one by one (their differences and products with the velocity and
-        # rates: each rotor's own drag and thrust share), fitted on every sample: 21 columns
-        # take a few thousandths of the noise's power from thousands of samples
-        sat = sat - rotors @ np.linalg.lstsq(rotors, sat, rcond=1e-10)[0]
-        _, zs, ps, ss = above(sat)
-        if ps > alpha or ss < least:
-            out.append(Finding("unnamed", None, (CHANNELS[c],), {}, {
-                "heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
-                "blocks_improved": int((excess > 0).sum()), "blocks": B, "saturated": True,
-                "saturated_p": ps, "saturated_size": ss, "added": False}))
-            continue
+        # what the residual is a function of, given runs of one reference: a function of the
+        # state repeats with the reference, a disturbance is a new realisation every flight
+        found = source(left[:, c], pairs, search.blocks, alpha, search.flight_index) if pairs is not None else None
+        # a residual that does not repeat is of time, whatever fits it: the controller answers a
+        # disturbance through the rotor speeds, so a fit of the rotor terms on every sample
+        # absorbs one it fights. Otherwise, before "not a function of the state": every state
+        # entry of the library at once (an inertia, a torque scale, the drags and rotor terms
+        # together can leave what none alone was significant for), with the generic terms on
+        # what they leave
+        if found is None or found.get("source") != TIME:
+            if saturated is None:
+                saturated = _saturated(search, delay)
+                rotors = search.rotor_products(delay)
+                rotors = rotors / np.maximum(np.abs(rotors).max(axis=0), 1e-300)
+            sat = saturated[:, c] - search.terms(delay)[1] @ generic.sparse_fit(search.terms(delay)[1],
+                                                                                saturated[:, [c]])[0]
+            # and the rotor speeds one by one (their differences and products with the velocity
+            # and rates: each rotor's own drag and thrust share), fitted on every sample: 21
+            # columns take a few thousandths of the noise's power from thousands of samples
+            sat = sat - rotors @ np.linalg.lstsq(rotors, sat, rcond=1e-10)[0]
+            _, zs, ps, ss = above(sat, c)
+            # what the state fit leaves need only be a finding's size: the disturbance was
+            # already found as large as the noise before it
+            if ps > alpha or ss < floor:
+                out.append(Finding("unnamed", None, (CHANNELS[c],), {}, {
+                    "heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
+                    "blocks_improved": int((excess > 0).sum()), "blocks": B, "saturated": True,
+                    "saturated_p": ps, "saturated_size": ss, "added": False}))
+                continue
         evidence = {"heldout_gain": float(max(excess.sum(), 0.0) / total), "size": size, "z": z, "p": p,
                     "blocks_improved": int((excess > 0).sum()), "blocks": B,
                     "band": _band(left[:, c], search.blocks, dt,
                                   (search.noise_parts[:, c] / search.noise[c]) ** 2, search.window, search.order),
-                    "rms": float(np.sqrt(max(excess.sum(), 0.0) / counts.sum()) / search.weights[c])}
-        if pairs is not None:
-            evidence["source"] = source(left[:, c], pairs, search.blocks, alpha, search.flight_index)
+                    "rms": float(np.sqrt(max((excess * search.block_noise[:, c]).sum(), 0.0) / counts.sum())
+                                 / search.weights[c])}
+        if found is not None:
+            evidence["source"] = found
         # a residual that repeats with the reference is a function of what the reference makes of
         # the flight: the state beyond the library's entries and terms, or the input history beyond
         # its lags; no test here tells the two apart, so it is unnamed, never "not of the state"

@@ -100,25 +100,24 @@ def compare(world: Mapping[str, Mapping[str, float]], real: Mapping[str, Mapping
 
 # What is known of why a kind of figure is off: where its value in the world comes from
 WHY = {
-    "rotor speed noise": "kept at the sensors' specification (`sim.flight.noise.rotor`): at the rig's levels (docs/"
-                         "simulated-world.md, \"The sensors at the rig's levels\") discovery names an inertia "
-                         "correction and a slow actuation on worlds without them, the recorded rotor speeds' noise, "
-                         "largest where the rotors accelerate, entering both those entries' columns and the residual "
-                         "(errors in variables the least-squares fit does not undo)",
-    "accelerometer noise": "kept at the level the world was built with (`sim.flight.noise.accel`), to be set with the "
-                           "rotor speeds' (docs/simulated-world.md gives the rig's levels of the three vibration-borne "
-                           "sensors)",
-    "noise": "one level per sensor for every flight (`sim.flight.noise`): the gyro's was raised by the rig's "
-             "geometric-mean ratio (0.02 to 0.044 rad/s), but the figure measured after the data chain's filter "
-             "grows less than the setting, so the world stays below the rig; the rig's also differs from one "
-             "trajectory to another (propeller vibration), the world's does not",
+    "rotor speed noise": "set at the rig's level after the data chain, growing with how much the rotors move "
+                         "(`sim.flight.noise.rotor`, `vibration_ref`): where it is off, the world's rotors move more "
+                         "or less than the rig's on that trajectory (its Melon leaves and brakes more gently)",
+    "accelerometer noise": "set at the rig's level after the data chain, growing with how much the rotors move "
+                           "(`sim.flight.noise.accel`, `vibration_ref`): where it is off, the world's rotors move "
+                           "more or less than the rig's on that trajectory (its Melon leaves and brakes more gently)",
+    "noise": "set at the rig's level after the data chain, growing with how much the rotors move "
+             "(`sim.flight.noise`, `vibration_ref`): where it is off, the world's rotors move more or less than "
+             "the rig's on that trajectory (its Melon leaves and brakes more gently, its Square's corners are "
+             "sharper)",
     "spread": "the world's flights differ only in their random draws (the turbulence, the thrust fluctuation): "
               "its slow roll and pitch turbulence (0.4 Hz, the rig's band) leaves each flight a mean torque of "
               "about 0.1 mN m, above the rig's roll figure and below its pitch one; "
               "the rig's mean pitch and yaw torques move together between groups of consecutive flights (the "
               "vehicle changed between them: its centre of mass moved by a few tenths of a millimetre when the "
               "battery was changed, most likely), and so do its mean forces, read from the accelerometer (a "
-              "bias new at each power-up, most likely; the world's accelerometer has none). A world whose "
+              "bias new at each power-up, most likely, which the world's accelerometer draws at the rig's size; "
+              "its draws over 15 flights scatter as much as the figure does). A world whose "
               "centre of mass moves from flight to flight by the rig's amount was flown: it matches the pitch "
               "figure but leaves the learned models' angular-velocity ratios where they are, so the world keeps "
               "one centre of mass",
@@ -157,8 +156,9 @@ def markdown(result: Mapping[str, Any]) -> str:
     for r in result["off"]:
         L.append(f"| {r['trajectory']} | {r['figure']} | {r['world']:.4g} | {r['real']:.4g} | {r['ratio']:.2f} | "
                  f"{_why(r['figure'])} |")
-    L += ["", "The world's gyro noise was raised toward the rig's; its accelerometer's and rotor speeds' noise were "
-          "not, for the reasons above. Its effects, their bands and the telemetry delay are not fitted to these figures: each "
+    L += ["", "The world's gyro, accelerometer and rotor-speed noise are set at the rig's levels after the data chain, "
+          "growing with how much the rotors move. Its effects, their bands and the telemetry delay are not fitted to "
+          "these figures: each "
           "moves the benchmark's pattern on the simulated world (reports/sim/stats.md), which is what the world "
           "is tuned to show.", "",
           "## Every figure", "", "| trajectory | figure | world | real | ratio |", "|---|---|---|---|---|"]
