@@ -26,3 +26,18 @@ def test_a_failed_world_counts_in_its_family_a_diverged_one_keeps_its_verdicts_a
     assert (got["turbulence"]["of_time"], got["turbulence"]["slow_actuation_dropped"]) == (1, 1)
     assert got["thrust_lag"]["worlds"] == got["thrust_lag"]["slow_actuation_named"] == got["thrust_lag"]["diverged"] == 1
     assert got["state"]["diverged"] == 0
+
+
+def test_a_short_random_flies_the_logged_waypoints_at_their_own_pace():
+    # 50 waypoints over 60 s, one every 60/49 = 1.224 s: 20 s hold 16.3 intervals, so the first 17
+    # waypoints, 1.25 s apart; drawn waypoints (no list) keep their count of about one a second
+    from nanosysid.campaign import short_flights_config
+    from nanosysid.sim.simulator import SimConfig
+
+    points = [[0.1 * i, 0.0, 1.5] for i in range(50)]
+    others = {"melon": {}, "yawsweep": {}}
+    base = SimConfig(trajectories={"random": {"duration": 60.0, "points": points}, **others})
+    short = short_flights_config(20.0, base, calibration=10.0).trajectories["random"]
+    assert short["duration"] == 20.0 and short["points"] == points[:17]
+    drawn = SimConfig(trajectories={"random": {"duration": 60.0, "points": None}, **others})
+    assert short_flights_config(20.0, drawn, calibration=10.0).trajectories["random"]["n_points"] == 18

@@ -101,7 +101,7 @@ def test_the_schema_and_conf_name_the_same_settings():
     used = set()
     for root, overrides in (("config", []), ("config", ["data=csv", "~model@models.oracle"]),
                             ("config", ["data=sim_direct"]), ("config", ["launcher=slurm"]),
-                            ("config", ["+sim.flight.gains.kp_xy=0.7", "models.residual.train.scheduler=null"]),
+                            ("config", ["+sim.flight.gains.kR_z=0.005", "models.residual.train.scheduler=null"]),
                             ("rig", [])):
         composed = yaml.safe_load(config.compose_text(overrides, conf_dir=ROOT / "conf", root=root))
         # an external model's own arguments (a user's, the README's) are its callable's to check

@@ -202,7 +202,7 @@ def test_a_hidden_effect_is_named_with_its_truth_inside_its_interval(world, entr
     assert f.verdict == "named" or set(f.alternatives[1:]) <= set(rivals), (f.verdict, f.alternatives)
     # named: it beat its eligible rivals held out, so it is the best of its round on most folds
     # (an implausible candidate that fits better is no rival)
-    assert f.evidence["stability"] >= 0.7, f.evidence["stability"]
+    assert f.evidence["stability"] > 0.5, f.evidence["stability"]
     # the delay is read off a grid, so its interval must reach the truth between two points
     slack = 0.0 if entry == "input_delay" else 0.1
     for (k, v), truth in zip(f.params.items(), TRUTH[entry]):
@@ -376,6 +376,17 @@ def test_a_delay_beyond_the_search_has_an_interval_open_above():
     assert f.params["delay [s]"] == 0.025
     lo, hi = f.evidence["ci"]["delay [s]"]
     assert lo <= 0.025 and hi >= TRUTH["input_delay"][0], (lo, hi)
+
+
+def test_a_delay_between_the_grids_points_is_read_between_them():
+    # the world's 33 ms on the 5 ms grid: the nearer point, 35 ms, would leave a lag of 2 ms for
+    # a slow actuation to fit
+    r = discovered("delay")
+    f = next(f for f in r.findings if f.entry == "input_delay")
+    truth = TRUTH["input_delay"][0]
+    assert abs(f.params["delay [s]"] - truth) < 1e-3, f.params
+    lo, hi = f.evidence["ci"]["delay [s]"]
+    assert lo <= truth <= hi and "slow_actuation" not in entries(r)
 
 
 def test_decorrelation_lag_is_where_an_ar1_process_forgets_its_past():

@@ -173,9 +173,9 @@ def test_the_campaign_judges_a_worlds_motor_lag_k_f_and_k_m(campaign_flights):
 
 
 def test_a_rig_whose_loop_fights_strong_thrust_disturbances_gets_its_lag_from_the_setpoints(campaign_flights):
-    # The loop answers the strong thrust fluctuations with fast rotor-speed changes: no reference
-    # step stands out lag_threshold times above them, and the whole-flight correlation is pulled
-    # early by tens of ms (no interval). Relaxed until they give an interval, the transients take
+    # The loop answers the strong thrust fluctuations with fast rotor-speed changes: at most the
+    # Melon's jump from the takeoff height stands out lag_threshold times above them, too few for
+    # an interval, and early by several ms. Relaxed until they give an interval, the transients take
     # in some of the loop's answers and stay more than 10 ms early. The setpoints do not answer
     # the disturbances: as instruments they put the lag within 3 ms of the world's, inside the
     # interval.
@@ -188,7 +188,7 @@ def test_a_rig_whose_loop_fights_strong_thrust_disturbances_gets_its_lag_from_th
                                    pd.DataFrame({"t_src": f.t, **{f"m{i + 1}": f.u[:, i] for i in range(4)}}), cfg)
                 for f in flights]
     fixed = motor_lag_estimate(evidence, cfg, threshold=cfg.lag_threshold * np.median([e.background for e in evidence]))
-    assert fixed.events == 0 and fixed.method == "whole-flight correlation" and abs(fixed.value - 0.030) > 0.030
+    assert fixed.events <= 1 and fixed.interval == (None, None) and abs(fixed.value - 0.030) > 0.005
     relaxed = motor_lag_estimate(evidence, cfg)
     assert "threshold relaxed" in relaxed.method and relaxed.units >= 2 and relaxed.value < 0.030 - 0.010
     ident = campaign.identification(world, flights, setup=setup)

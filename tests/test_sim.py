@@ -10,7 +10,7 @@ import torch
 
 from nanosysid import predictors, protocol, sim, so3
 from nanosysid.dataio import write_flight_csv
-from nanosysid.errors import PredictionError
+from nanosysid.errors import ConfigError, PredictionError
 from nanosysid.sim import world as fx
 from nanosysid.sim.simulator import NoiseConfig, SimConfig, simulate
 from nanosysid.sim.trajectories import Reference, make_reference
@@ -97,6 +97,17 @@ def test_random_reference():
     assert np.array_equal(same, p) and not np.allclose(other, p)
 
 
+def test_random_reference_through_given_waypoints():
+    # a logged reference's waypoints: the path passes through each at its knot (20 s apart over
+    # 60 s) and stands still at both ends; the seed and the box no longer matter
+    points = [[0.0, 0.0, 1.0], [1.0, -0.5, 1.5], [-1.0, 0.5, 2.0], [0.2, 0.1, 1.2]]
+    ref = make_reference("random", points=points, seed=5, box=(0.1, 0.1, 0.1))
+    p, v, _ = ref.pva(np.array([0.0, 20.0, 40.0, 60.0]))
+    assert np.allclose(p, points) and np.allclose(v[[0, -1]], 0)
+    with pytest.raises(ConfigError, match="random.points"):
+        make_reference("random", points=[[0.0, 0.0]])
+
+
 def test_melon_reference():
     ref = make_reference("melon", ramp_time=0.0)
     t, p, v, a = sample(ref)
@@ -146,6 +157,10 @@ def test_melon_started_from_the_centre_holds_the_centre_until_it_jumps_onto_the_
     # the same flight after t = 0, and without the option the hover is on the circle already
     plain = make_reference("melon", center=centre)
     assert np.array_equal(plain.pva(np.array([10.0]))[0], p[3:]) and np.allclose(plain.pva(np.array([-5.0]))[0], p[2])
+    # from the rig's takeoff height: the hover 0.7 m below the centre, the same jump's target
+    low = make_reference("melon", center=centre, start_from_centre=True, start_height=0.55)
+    q = low.pva(np.array([-5.0, 0.0]))[0]
+    assert np.allclose(q[0], [0.0, 0.0, 0.55]) and np.allclose(q[1], p[2])
 
 
 def test_chirp_reference():
@@ -204,12 +219,12 @@ def wrench(name, x=None, om=HOVER, om_dot=NO_ACC):
 
 def test_rotor_drag_opposes_body_velocity_and_pitches_the_nose_up():
     """Worked by hand: at hover the four rotors turn at sqrt(0.045 * 9.81 / (4 * 3.72e-8)) =
-    1722.42 rad/s, sum 6889.69 rad/s. Flying forward at 1 m/s: F_x = -1.8e-6 * 6889.69 =
-    -1.24014e-2 N (0.28 1/s deceleration), acting at the hubs 8 mm above the centre of mass:
-    tau_y = h F_x = -9.9211e-5 N m (nose up), nothing about x or z."""
+    1722.42 rad/s, sum 6889.69 rad/s. Flying forward at 1 m/s: F_x = -2.8e-6 * 6889.69 =
+    -1.92911e-2 N (0.43 1/s deceleration), acting at the hubs 8 mm above the centre of mass:
+    tau_y = h F_x = -1.54329e-4 N m (nose up), nothing about x or z."""
     f, t = wrench("rotor_drag", state(v=(1.0, 0, 0)))
-    assert torch.allclose(f[0], torch.tensor([-1.24014e-2, 0, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
-    assert torch.allclose(t[0], torch.tensor([0, -9.9211e-5, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
+    assert torch.allclose(f[0], torch.tensor([-1.92911e-2, 0, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
+    assert torch.allclose(t[0], torch.tensor([0, -1.54329e-4, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
     f2, _ = wrench("rotor_drag", state(v=(2.0, 0, 0)))
     assert torch.isclose(f2[0, 0], 2 * f[0, 0])  # linear in speed
 
@@ -217,12 +232,12 @@ def test_rotor_drag_opposes_body_velocity_and_pitches_the_nose_up():
 def test_rotor_drag_of_each_rotor_damps_a_roll():
     """Worked by hand: rolling at 1 rad/s in hover, rotor i at (x_i, y_i, h) moves at w x r_i =
     (0, -h, y_i): the rotors on the side going down meet air from below (axial inflow) and lose
-    thrust, F_i = Omega (0, K_y h, -K_z y_i). Summed: F_y = 6889.69 * 1.8e-6 * 0.008 = 9.9212e-5 N,
-    tau_x = -sum Omega (K_z y_i^2 + K_y h^2) = -6889.69 (1e-6 * 0.03535^2 + 1.8e-6 * 0.008^2)
-    = -9.4030e-6 N m: a damping torque."""
+    thrust, F_i = Omega (0, K_y h, -K_z y_i). Summed: F_y = 6889.69 * 2.8e-6 * 0.008 = 1.54329e-4 N,
+    tau_x = -sum Omega (K_z y_i^2 + K_y h^2) = -6889.69 (1e-6 * 0.03535^2 + 2.8e-6 * 0.008^2)
+    = -9.8441e-6 N m: a damping torque."""
     f, t = wrench("rotor_drag", state(w=(1.0, 0, 0)))
-    assert torch.allclose(f[0], torch.tensor([0, 9.9212e-5, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
-    assert torch.allclose(t[0], torch.tensor([-9.4030e-6, 0, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
+    assert torch.allclose(f[0], torch.tensor([0, 1.54329e-4, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
+    assert torch.allclose(t[0], torch.tensor([-9.8441e-6, 0, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
 
 
 def test_body_drag_is_quadratic():
@@ -277,7 +292,7 @@ def test_random_effects_are_band_limited_with_their_stated_size_and_replay_from_
     stated = np.array([*fx.TURBULENCE_FORCE, *fx.TURBULENCE_TORQUE, *[fx.UNSTEADY_THRUST] * 4])
     assert np.allclose(d.std(axis=0), stated, rtol=0.08)
     freq = np.fft.rfftfreq(len(d), 1 / fx.REALISATION_RATE)
-    for channel, band in ((0, fx.TURBULENCE_BAND), (3, fx.TURBULENCE_TORQUE_BAND[0]), (5, fx.TURBULENCE_BAND),
+    for channel, band in ((0, fx.TURBULENCE_BAND), (3, fx.TURBULENCE_TORQUE_BAND[0]), (5, fx.TURBULENCE_TORQUE_BAND[2]),
                           (6, fx.UNSTEADY_THRUST_BAND)):
         spectrum = np.abs(np.fft.rfft(d[:, channel] - d[:, channel].mean())) ** 2
         assert spectrum[freq > 5 * band].sum() < 0.01 * spectrum.sum()

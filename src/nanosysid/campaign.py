@@ -214,12 +214,22 @@ def short_flights_config(duration: float = 20.0, base: SimConfig | None = None, 
         "duration": calibration, "fade": min(3.0, 0.1 * calibration)}
     return dataclasses.replace(base, trajectories={
         "square": _square_within(default.get("square", {}), duration),
-        "random": {**default["random"], "duration": duration, "n_points": max(4, int(round(0.9 * duration)))},
+        "random": _random_within(default["random"], duration),
         "melon": {**default["melon"], "duration": duration, "circle_time": 0.75 * duration,
                   "return_time": 0.15 * duration},
         "chirp": {"duration": duration},
         "yawsweep": sweep,
     })
+
+
+def _random_within(random: Mapping[str, Any], duration: float) -> dict[str, Any]:
+    """The Random cut to ``duration`` s at its own pace: given waypoints (a logged reference's),
+    as many of its first ones as the flight has time for; drawn ones, about one every 1.1 s."""
+    points = random.get("points")
+    if points is None:
+        return {**random, "duration": duration, "n_points": max(4, int(round(0.9 * duration)))}
+    every = float(random.get("duration", 60.0)) / (len(points) - 1)
+    return {**random, "duration": duration, "points": list(points)[:max(4, int(round(duration / every)) + 1)]}
 
 
 @dataclass(frozen=True)

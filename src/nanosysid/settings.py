@@ -48,6 +48,7 @@ NUMBER = "a finite number"
 TEXT = "text"
 TEXT_OR_NULL = "text, or null"
 FLAG = "true or false"
+WAYPOINTS = "a list of [x, y, z] waypoints (m), or null"
 FREE = "anything its user accepts"  # checked where it is used (an optimiser's arguments, a network's)
 # a tuple of words: the setting takes one of them
 
@@ -65,7 +66,9 @@ SCHEMA: list[tuple[str, str | tuple[str, ...]]] = [
     ("sim.flight.gains.*", NUMBER),
     ("sim.flight.trajectories.*.center", NUMBER), ("sim.flight.trajectories.*.n_points", COUNT),
     ("sim.flight.trajectories.melon.omega_start", NONNEG_OR_NULL),
-    ("sim.flight.trajectories.melon.start_from_centre", FLAG), ("sim.flight.trajectories.*", POSITIVE),
+    ("sim.flight.trajectories.melon.start_height", NONNEG_OR_NULL),
+    ("sim.flight.trajectories.melon.start_from_centre", FLAG), ("sim.flight.trajectories.random.points", WAYPOINTS),
+    ("sim.flight.trajectories.*", POSITIVE),
     ("sim.recorder.*_rate", POSITIVE), ("sim.recorder.host_epoch", NUMBER), ("sim.recorder.mocap_clock", NUMBER),
     ("sim.recorder.stm_clock", NUMBER), ("sim.recorder.stm_drift_ppm", NUMBER), ("sim.recorder.wifi_loss", SHARE),
     ("sim.recorder.motor_missed", SHARE), ("sim.recorder.*", NONNEG),
@@ -188,6 +191,9 @@ def fits(value: object, kind: str | tuple[str, ...]) -> bool:
         return isinstance(value, bool)
     if kind == COUNT_OR_AUTO:
         return value == "auto" or fits(value, COUNT)
+    if kind == WAYPOINTS:
+        return value is None or (isinstance(value, (list, tuple)) and len(value) == 3
+                                 and all(fits(c, NUMBER) for c in value))
     if value is None:
         return kind in (COUNT_OR_NULL, NONNEG_OR_NULL)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):

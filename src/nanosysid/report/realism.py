@@ -102,38 +102,37 @@ def compare(world: Mapping[str, Mapping[str, float]], real: Mapping[str, Mapping
 WHY = {
     "rotor speed noise": "set at the rig's level after the data chain, growing with how much the rotors move "
                          "(`sim.flight.noise.rotor`, `vibration_ref`): where it is off, the world's rotors move more "
-                         "or less than the rig's on that trajectory (its Melon leaves and brakes more gently)",
+                         "or less than the rig's on that trajectory (its Melon leaves and brakes more gently, its "
+                         "Square's corners move the rotors more)",
     "accelerometer noise": "set at the rig's level after the data chain, growing with how much the rotors move "
                            "(`sim.flight.noise.accel`, `vibration_ref`): where it is off, the world's rotors move "
-                           "more or less than the rig's on that trajectory (its Melon leaves and brakes more gently)",
+                           "more or less than the rig's on that trajectory (its Melon leaves and brakes more gently, "
+                           "its Square's corners move the rotors more)",
     "noise": "set at the rig's level after the data chain, growing with how much the rotors move "
              "(`sim.flight.noise`, `vibration_ref`): where it is off, the world's rotors move more or less than "
-             "the rig's on that trajectory (its Melon leaves and brakes more gently, its Square's corners are "
-             "sharper)",
-    "spread": "the world's flights differ only in their random draws (the turbulence, the thrust fluctuation): "
-              "its slow roll and pitch turbulence (0.4 Hz, the rig's band) leaves each flight a mean torque of "
-              "about 0.1 mN m, above the rig's roll figure and below its pitch one; "
-              "the rig's mean pitch and yaw torques move together between groups of consecutive flights (the "
-              "vehicle changed between them: its centre of mass moved by a few tenths of a millimetre when the "
-              "battery was changed, most likely), and so do its mean forces, read from the accelerometer (a "
-              "bias new at each power-up, most likely, which the world's accelerometer draws at the rig's size; "
-              "its draws over 15 flights scatter as much as the figure does). A world whose "
-              "centre of mass moves from flight to flight by the rig's amount was flown: it matches the pitch "
-              "figure but leaves the learned models' angular-velocity ratios where they are, so the world keeps "
-              "one centre of mass",
-    "residual": "the world's effects were sized so that the benchmark's table on the simulated world shows the "
-                "paper's pattern (reports/sim/stats.md), not fitted to the real residual; its roll and pitch "
-                "turbulence torque has one size for both axes, the rig's roll residual's (its pitch residual is "
-                "larger)",
-    "median frequency": "the world's time-varying effects have corners of 1 Hz (the turbulence's force and yaw "
-                        "torque), 0.4 Hz (its roll and pitch torque, at the rig's band) and 3 Hz (the thrust "
-                        "fluctuation); the rig's yaw torque residual sits higher, its force residual lower",
-    "motor lag": "the world delays the recorded rotor speeds by its telemetry delay (30 ms); the rig's logs lag "
-                 "by a few ms, as the sync stage measures them",
-    "motion": "the simulator flies the paper's Square, Random and Chirp as published and the rig's logged Melon, "
-              "with the firmware's default controller gains; the rig's references and tuning are its own (its "
+             "the rig's on that trajectory (its Melon leaves and brakes more gently, its Square's corners move the "
+             "rotors more); one law of the rotors' acceleration does not give the rig's level on every trajectory",
+    "spread": "the world's flights differ only in their random draws (the turbulence, the thrust fluctuation, the "
+              "accelerometer's bias at the rig's size): its slow roll turbulence (0.4 Hz, the rig's band) leaves "
+              "each flight a mean torque of about 0.1 mN m, above the rig's roll figure; the rig's mean pitch and "
+              "yaw torques move together between groups of consecutive flights (the vehicle changed between them: "
+              "its centre of mass moved by a few tenths of a millimetre when the battery was changed, most "
+              "likely), which the world, one vehicle with one centre of mass for all its flights, does not have",
+    "residual": "the world's effects have one size for every trajectory: its rotor drag is the rig's (K_xy), its "
+                "turbulence torque the rig's residual per axis, its turbulence force and thrust fluctuation sized "
+                "so that the physics row matches the paper's (reports/sim/stats.md); the rig's residual varies "
+                "between trajectories more than that (its Square's thrust residual is the largest, its Random's "
+                "yaw residual the smallest), as effects the world lacks would make it",
+    "median frequency": "the world's time-varying effects have corners of 1 Hz (the turbulence's force), 0.4 Hz "
+                        "(its roll and pitch torque, the rig's band), 3 Hz (its yaw torque) and 3 Hz (the thrust "
+                        "fluctuation, which carries the world's thrust residual to about 1 Hz); the rig's force "
+                        "residual sits lower (0.3-0.5 Hz), its yaw torque residual higher (2-3 Hz)",
+    "motor lag": "the world delays the recorded rotor speeds by its telemetry delay (30 ms), which the sync stage "
+                 "must find; the rig's logs lag by a few ms, as the sync stage measures them",
+    "motion": "the simulator flies the paper's Square and Chirp as published and the rig's logged Random and "
+              "Melon, with a position loop stiffer than the firmware's default (`sim.flight.gains`); the rig's "
               "Melon leaves the centre at 3 m/s and brakes at the end within a second, the tilt and rates of "
-              "those two seconds setting its peaks; the world's controller leaves at 2 m/s)",
+              "those two seconds setting its peaks, where the world's controller leaves at 2 m/s",
 }
 
 

@@ -11,10 +11,12 @@ rotors' torque coefficient k_M, not one of the benchmark's trajectories.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Sequence
 
 import numpy as np
 from scipy.interpolate import CubicSpline
+
+from nanosysid.errors import ConfigError
 
 __all__ = ["Reference", "square", "random_points", "melon", "chirp", "yaw_sweep", "make_reference", "TRAJECTORIES"]
 
@@ -112,13 +114,20 @@ def square(*, side: float = 1.0, z_low: float = 1.0, z_step: float = 1.0, move: 
 
 
 def random_points(*, n_points: int = 52, duration: float = 60.0, box: tuple[float, float, float] = (2.0, 2.0, 1.0),
-                  center: tuple[float, float, float] = (0.0, 0.0, 1.5), seed: int = 0) -> Reference:
+                  center: tuple[float, float, float] = (0.0, 0.0, 1.5), seed: int = 0,
+                  points: Sequence[Sequence[float]] | None = None) -> Reference:
     """``n_points`` waypoints drawn uniformly in a box (m), joined by a clamped cubic spline
     with knots evenly spaced over ``duration`` s. The seed fixes the waypoints, so runs of the
-    same seed re-fly the same path."""
-    rng = np.random.default_rng(seed)
-    pts = np.asarray(center) + (rng.random((n_points, 3)) - 0.5) * np.asarray(box)
-    knots = np.linspace(0.0, duration, n_points)
+    same seed re-fly the same path. ``points`` ``(n, 3)`` (m) gives the waypoints instead (a
+    logged reference's), and ``n_points``, ``box``, ``center`` and ``seed`` go unused."""
+    if points is not None:
+        pts = np.asarray(points, dtype=float)
+        if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
+            raise ConfigError(f"random.points: a list of at least two [x, y, z] waypoints, got shape {pts.shape}")
+    else:
+        rng = np.random.default_rng(seed)
+        pts = np.asarray(center) + (rng.random((n_points, 3)) - 0.5) * np.asarray(box)
+    knots = np.linspace(0.0, duration, len(pts))
     spline = CubicSpline(knots, pts, bc_type="clamped", axis=0)
     d1, d2 = spline.derivative(1), spline.derivative(2)
     return Reference("random", duration, lambda t: (spline(t), d1(t), d2(t)))
@@ -127,7 +136,8 @@ def random_points(*, n_points: int = 52, duration: float = 60.0, box: tuple[floa
 def melon(*, radius: float = 0.75, omega_circle: float = 2.5, omega_plane: float = 0.4,
           center: tuple[float, float, float] = (0.0, 0.0, 1.5), duration: float = 65.0,
           circle_time: float = 55.0, ramp_time: float = 1.0, return_time: float = 4.0,
-          omega_start: float | None = None, start_from_centre: bool = False) -> Reference:
+          omega_start: float | None = None, start_from_centre: bool = False,
+          start_height: float | None = None) -> Reference:
     """Circles of ``radius`` m in a local x-z plane, the plane turning about the world x axis at
     ``omega_plane`` rad/s, for ``circle_time`` s; then a minimum-jerk return to the centre over
     ``return_time`` s, and hover there until ``duration``. The circling rate rises linearly from
@@ -135,6 +145,7 @@ def melon(*, radius: float = 0.75, omega_circle: float = 2.5, omega_plane: float
     ``omega_circle``), and the whole of it is ramped in linearly over the first ``ramp_time`` s.
     With ``start_from_centre`` the vehicle hovers at the centre before the start and the setpoint
     jumps onto the circle at t = 0 (the rig's logged Melon); otherwise it starts on the circle.
+    ``start_height`` (m) puts that hover below or above the centre (None: at its height).
     """
     c = np.asarray(center)
     if circle_time + return_time > duration:
@@ -174,7 +185,8 @@ def melon(*, radius: float = 0.75, omega_circle: float = 2.5, omega_plane: float
             p[back], v[back], a[back] = back_pva(np.minimum(t[back] - circle_time, return_time))
         return p + c, v, a
 
-    return Reference("melon", duration, pva, hold_before=tuple(c) if start_from_centre else None)
+    hold = (c[0], c[1], c[2] if start_height is None else start_height)
+    return Reference("melon", duration, pva, hold_before=tuple(float(x) for x in hold) if start_from_centre else None)
 
 
 def chirp(*, amplitude: float = 0.5, f_start: float = 0.1, f_end: float = 0.5, duration: float = 60.0,

@@ -39,7 +39,9 @@ __all__ = ["WorldEffect", "Realisation", "Body", "RECORDS", "REGISTRY", "registe
 ExtraWrench = Callable[[Tensor, Tensor, Tensor, Tensor], tuple[Tensor, Tensor]]
 
 # Physical parameters at strength 1.0, with their sources; each effect's record below uses them.
-ROTOR_DRAG = (1.8e-6, 1.8e-6, 1.0e-6)  # kg/rad; Foerster's CF2 fit 0.92e-6, DM's CF21BL lumped drag 3.1e-6
+# kg/rad; Foerster's CF2 fit 0.92e-6, DM's CF21BL lumped drag 3.1e-6; in x and y the rig's own
+# (its induced drag K_xy, 2.67e-6 to 2.91e-6 over its flights: reports/rig/discovery)
+ROTOR_DRAG = (2.8e-6, 2.8e-6, 1.0e-6)
 # m: the propeller plane above the centre of mass (motor can and propeller hub over the board,
 # the battery and decks near the board; estimated from the layout, no measurement known)
 ROTOR_HUB_HEIGHT = 0.008
@@ -53,14 +55,15 @@ ROTOR_INERTIA = 3.9e-8  # kg m^2, drone-models' cf21B propeller value
 INERTIA_OFFSET = (0.15, 0.15, 0.25)
 # Band-limited disturbance: the paper's unexplained slow roll/pitch torque and the force that the
 # residual networks cannot learn; the force's size is set so that the physics row matches the
-# paper's (reports/sim/stats.md), a few per cent of the hover thrust; the roll and pitch torque's
-# size and band are the rig's roll torque residual's (reports/rig/world.md)
+# paper's (reports/sim/stats.md), a few per cent of the hover thrust; the torque's size and band
+# per axis are the rig's torque residual's (reports/rig/world.md): its pitch residual is larger
+# than its roll residual, and its yaw residual sits higher
 TURBULENCE_FORCE = (5.0e-3, 5.0e-3, 6.0e-3)  # N, std per body axis
-TURBULENCE_TORQUE = (5.0e-4, 5.0e-4, 0.4e-4)  # N m, std per body axis
-TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass of the force and the yaw torque
-# Hz, the roll and pitch torque's corner: the rig's torque residual sits at 0.3-0.4 Hz (its median
-# frequency), where the attitude loop cancels it through the rotor speeds
-TURBULENCE_TORQUE_BAND = (0.4, 0.4, TURBULENCE_BAND)
+TURBULENCE_TORQUE = (4.5e-4, 7.0e-4, 0.3e-4)  # N m, std per body axis
+TURBULENCE_BAND = 1.0  # Hz, corner of the second-order low-pass of the force
+# Hz, the torque's corners: the rig's roll and pitch residual sits at 0.3-0.4 Hz (its median
+# frequency), where the attitude loop cancels it through the rotor speeds; its yaw residual at 2-3 Hz
+TURBULENCE_TORQUE_BAND = (0.4, 0.4, 3.0)
 # Gusts: the arena's air in steps rather than as a smooth turbulence (a door, a fan, the
 # downwash off a wall the vehicle passes): a body force and roll/pitch torque that hold a random
 # level for a random time (exponential, mean GUST_DWELL) and move to the next within GUST_RISE.
@@ -351,7 +354,8 @@ RECORDS: tuple[WorldEffect, ...] = (
         "turbulence", "a slow random force and torque: the vehicle's downwash recirculating in the arena",
         f"band-limited random body force and torque (downwash recirculating in the arena): std "
         f"({_mm(TURBULENCE_FORCE)}) mN and ({', '.join(f'{x:g}' for x in TURBULENCE_TORQUE)}) N m, "
-        f"low-pass {TURBULENCE_BAND:g} Hz (roll and pitch torque {TURBULENCE_TORQUE_BAND[0]:g} Hz); a new realisation "
+        f"low-pass {TURBULENCE_BAND:g} Hz (the torque {', '.join(f'{b:g}' for b in TURBULENCE_TORQUE_BAND)} Hz); a new "
+        "realisation "
         "every flight",
         "time: a new random realisation every flight", default=1.0,
         realisation=Realisation((*TURBULENCE_FORCE, *TURBULENCE_TORQUE), (TURBULENCE_BAND,) * 3 + TURBULENCE_TORQUE_BAND,
