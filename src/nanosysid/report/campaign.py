@@ -15,6 +15,14 @@ def _pct(x) -> str:
     return "–" if x is None else f"{100 * x:.0f} %"
 
 
+def _sindy_median(x) -> str:
+    # a rollout that diverges on the test flight closes a gap of minus infinity: where that is
+    # most worlds the median is no number
+    if x == float("-inf"):
+        return "none (its rollouts diverge on the test flight in more than half of the worlds)"
+    return _pct(x)
+
+
 def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
     """The campaign's figures, readable: recall per effect and strength bin, precision, clean and
     out-of-library worlds, gap closed, and the plain SINDy model beside."""
@@ -38,7 +46,7 @@ def summary_markdown(summary: dict[str, Any], *, relevant: float) -> str:
           f"{_pct(summary['out_of_library_without_false_name'])}",
           f"- worlds with an effect of the state: {summary['state_worlds']}, at least half the gap closed in "
           f"{_pct(summary['half_gap_closed'])} (median {_pct(summary['gap_closed_median'])})",
-          f"- plain SINDy: median gap closed {_pct(summary['sindy_gap_closed_median'])}, "
+          f"- plain SINDy: median gap closed {_sindy_median(summary['sindy_gap_closed_median'])}, "
           f"{summary['sindy_terms_mean']:.1f} terms on average; discovery closes more of the gap in "
           f"{_pct(summary['beats_sindy'])} of the worlds",
           f"- named coefficients whose entry describes a world effect one to one: {summary['coefficients_checked']}, "
