@@ -110,9 +110,10 @@ def _world_beside(cfg: DictConfig, bench, sync) -> dict:
     sim_vehicle = identified_vehicle(vehicle_of(cfg), str(Path(p.world_identify) / "params.json"))
     rig_vehicle = identified_vehicle(vehicle_of(cfg), str(Path(cfg.identify.out_dir) / "params.json"))
     sim_sync = json.loads((Path(p.world_data_report) / "sync.json").read_text())
-    return realism.compare(realism.world_figures(sim_bench.train + sim_bench.test, sim_vehicle, w, o),
-                           realism.world_figures(bench.train + bench.test, rig_vehicle, w, o),
-                           (float(sim_sync[0]["motor_lag"]), float(sync[0]["motor_lag"])))
+    world, real = sim_bench.train + sim_bench.test, bench.train + bench.test
+    result = realism.compare(realism.world_figures(world, sim_vehicle, w, o), realism.world_figures(real, rig_vehicle, w, o),
+                             (float(sim_sync[0]["motor_lag"]), float(sync[0]["motor_lag"])))
+    return {**result, "noise_law": {"world": realism.noise_law(world), "real": realism.noise_law(real)}}
 
 
 if __name__ == "__main__":

@@ -224,6 +224,45 @@ def test_the_world_comparison_measures_how_far_each_flights_mean_residual_moves(
     assert not rows["F_y residual, spread of the flights' means [mN]"]["off"]
 
 
+def test_the_world_comparison_reads_a_residuals_band_between_welchs_bins():
+    # power spread evenly over 0 .. 0.7 Hz (random phases): half of it lies below 0.35 Hz, which
+    # falls between Welch's 0.098 Hz bins (0.293 and 0.391)
+    from nanosysid.report import realism
+
+    rng = np.random.default_rng(0)
+    f = np.fft.rfftfreq(60000, 0.01)  # 600 s: Welch's average over 117 segments
+    x = np.fft.irfft(np.where((f > 0) & (f <= 0.7), np.exp(2j * np.pi * rng.random(len(f))), 0), 60000)
+    assert realism._median_frequency(x, 0.01) == pytest.approx(0.35, abs=0.015)
+
+
+def test_the_world_comparison_reads_how_each_sensors_noise_grows_with_the_rotors_motion():
+    # five flights whose rotors swing at 0.5 Hz with amplitudes A (mean |dOmega/dt| = 4 A f = 2 A),
+    # each sensor's white noise n0 sqrt(1 + (a / ref)²) with its own ref: the law gives the refs back
+    from nanosysid.dataio import Flight
+    from nanosysid.report import realism
+
+    rng = np.random.default_rng(0)
+    t = np.arange(6000) * 0.01
+    ref = {"gyro": 1200.0, "accelerometer": 1500.0, "rotor speed": 1000.0}
+    n0 = {"gyro": 0.008, "accelerometer": 0.01, "rotor speed": 3.0}
+    flights = []
+    for k, amp in enumerate((50, 150, 300, 450, 600), start=1):
+        std = {s: n0[s] * np.sqrt(1 + (2 * amp / ref[s]) ** 2) for s in ref}
+        u = 1750 + amp * np.sin(np.pi * t)[:, None] * np.ones(4) + rng.normal(scale=std["rotor speed"], size=(len(t), 4))
+        y = np.zeros((len(t), 13))
+        y[:, 9] = 1.0
+        y[:, 10:13] = rng.normal(scale=std["gyro"], size=(len(t), 3))
+        extra = {c: rng.normal(scale=std["accelerometer"], size=len(t)) for c in ("ax_body", "ay_body", "az_body")}
+        flights.append(Flight(f"chirp_20250101_run{k}", t, u, y, extra))
+    law = realism.noise_law(flights)
+    for sensor, r in ref.items():
+        assert law[sensor] == pytest.approx(r, rel=0.1), sensor
+    # a noise that does not grow has no finite ref
+    for f in flights:
+        f.y[:, 10:13] = rng.normal(scale=0.008, size=(len(t), 3))
+    assert realism.noise_law(flights)["gyro"] > 5 * ref["gyro"]
+
+
 def test_the_discovery_reports_figures_name_only_what_they_draw():
     from nanosysid.report.discovery import figure_lines, horizon_caption
 
