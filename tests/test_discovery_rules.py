@@ -35,6 +35,14 @@ GOOD = {
 }
 
 
+def _band_pass_actuation(r):
+    # shares of alternating sign: the wrench's step response rises to 1.35 and falls back to 1
+    f = _finding("named", "slow_actuation", channels=("F_z",), ci={"g_0.1s [-]": (0.3, 0.7)})
+    f["params"] = {"g_0.1s [-]": 0.5, "g_0.3s [-]": 0.0, "g_1s [-]": -0.5}
+    r["findings"].append(f)
+    r["model"] += "+slow_actuation"
+
+
 def _broken(change):
     r = copy.deepcopy(GOOD)
     change(r)
@@ -62,6 +70,7 @@ def test_a_record_that_keeps_every_rule_passes():
     (lambda r: r["findings"][2]["evidence"].update(size=0.6), "below 1"),
     (lambda r: r["findings"][2]["evidence"].update(source={"source": "the reference"}), "repeats with the reference"),
     (lambda r: r["findings"][1].update(alternatives=["drag_moment"]), "fewer than two rivals"),
+    (_band_pass_actuation, "not the shape physics gives `slow_actuation`"),
 ])
 def test_each_broken_rule_is_caught(change, says):
     found = _broken(change)

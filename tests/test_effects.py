@@ -171,6 +171,22 @@ def test_slow_actuation_is_the_mixer_of_each_rotors_lag_behind_a_speed_step():
     assert np.all(effects.features(["slow_actuation"], x, om[0], torch.zeros_like(om[0]), v).numpy() == 0)
 
 
+def test_a_slow_actuation_is_a_lag_only_where_its_step_response_never_falls_back():
+    # half the wrench through the 0.3 s lag: 1 - 0.5 exp(-t / 0.3) rises from 0.5 to 1 and never falls
+    rise, fall = effects.lag_shape([0.0, 0.5, 0.0])
+    assert rise == pytest.approx(0.5, abs=1e-3) and fall == 0.0
+    assert effects.LIBRARY["slow_actuation"].shape([0.0, 0.5, 0.0])
+    # a fast share minus a slow one: 1 - 0.5 exp(-10 t) + 0.5 exp(-t) peaks where 5 exp(-10 t) =
+    # 0.5 exp(-t), t = ln(10) / 9, at 1 + 0.5 (10^(-1/9) - 10^(-10/9)) = 1.3485, and falls back to
+    # 1 + 0.5 exp(-5) by t = 5 s: a band-pass, no lag
+    peak = 0.5 * (10 ** (-1 / 9) - 10 ** (-10 / 9))
+    rise, fall = effects.lag_shape([0.5, 0.0, -0.5])
+    assert rise == pytest.approx(peak, abs=1e-4) and fall == pytest.approx(peak - 0.5 * np.exp(-5), abs=1e-4)
+    assert not effects.LIBRARY["slow_actuation"].shape([0.5, 0.0, -0.5])
+    # a lead (the wrench ahead of k Omega^2) falls from the start: no lag either
+    assert not effects.LIBRARY["slow_actuation"].shape([0.0, -0.3, 0.0])
+
+
 def test_a_window_continues_the_flights_lag_where_it_is_given_its_state():
     rng = np.random.default_rng(3)
     om = torch.from_numpy(rng.uniform(1500, 2500, (2, 400, 4)))

@@ -121,6 +121,9 @@ class Effect:
     # maps the columns' coefficients to them)
     width: int | None = None
     needs: tuple[str, ...] = ()
+    # the shape physics gives the coefficients together, beyond each one's sign: values ->
+    # whether they make the effect (a lag's step response rises and never falls back)
+    shape: Callable[[Sequence[float]], bool] | None = None
 
     @property
     def n_columns(self) -> int:
@@ -279,6 +282,28 @@ def _slow_actuation(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     return rows
 
 
+# the most a slow actuation's step response may fall back, as a share of its rise: shares of
+# either sign may come out of a fit (a small negative share beside the lag's own), but a
+# response that rises and then falls by a good part of its rise is a band-pass, which no lag of
+# a rotor's wrench makes
+LAG_FALL = 0.25
+
+
+def lag_shape(g: Sequence[float], times: Sequence[float] = SLOW_TIMES) -> tuple[float, float]:
+    """The rise and the largest fall back of the rotors' wrench after a unit step of its
+    ``k Ω²``, ``1 - Σ g_k exp(-t / T_k)`` with shares ``g`` lagging through ``times`` (s), over
+    five times the slowest lag: ``(rise, fall)``, the rise from its start to its highest."""
+    t = np.linspace(0.0, 5.0 * max(times), 2001)
+    r = 1.0 - sum(gk * np.exp(-t / tk) for gk, tk in zip(g, times))
+    peak = np.maximum.accumulate(r)
+    return float(peak[-1] - r[0]), float((peak - r).max())
+
+
+def _is_lag(g: Sequence[float]) -> bool:
+    rise, fall = lag_shape(g)
+    return fall <= LAG_FALL * rise
+
+
 def _battery(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     # k_F and k_M (1 + c (V - V_ref)): the rotors' whole wrench scales with the voltage
     rows = _zero_rows(1)
@@ -390,7 +415,7 @@ LIBRARY: dict[str, Effect] = {e.name: e for e in (
            "of small rotors)", tuple(f"g_{t:g}s [-]" for t in SLOW_TIMES), _slow_actuation,
            ("p", "v", "R", "w"), (0,) * len(SLOW_TIMES),
            excited_by="throttle and attitude steps held for longer than the lag (a square's corners), flown twice: "
-           "the lag repeats with the reference, a disturbance does not", bound=1.0, needs=("history",)),
+           "the lag repeats with the reference, a disturbance does not", bound=1.0, needs=("history",), shape=_is_lag),
     Effect("battery_thrust", "thrust and drag torque scaling with the battery voltage, k (1 + c (V - 3.7 V)) "
            "(Bitcraze: 'Keeping thrust consistent as the battery drains', 2025; the firmware's compensation "
            "filters the voltage with τ = 0.1 s and saturates below about 3.13 V)", ("c [1/V]",), _battery,

@@ -122,7 +122,12 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
     library fitted at once (and the other chosen ones), still improve the held-out fit by the
     selection's own test (one-sided signed-rank over blocks at ``alpha``, a size of at least
     ``floor``): else it stands in for a function of the state (a rotor's inertia answers the
-    rotor speeds' rates as a short lag does). Each pick's checks are kept on it."""
+    rotor speeds' rates as a short lag does). Its coefficients as the model holds them (every
+    entry chosen and the delay beside it, k_F and k_M as given) must have the shape physics
+    gives the entry (:attr:`~nanosysid.effects.Effect.shape`: a slow actuation's step response
+    never falls back by a good part of its rise, where the controller's answer to a
+    disturbance, fitted beside a delay, takes a band-pass's). Each pick's checks are kept on
+    it."""
     kept, dropped = [], list(selection.dropped)
     state = [n for n in COLUMN_ENTRIES[1:] if not entry(n).needs]
     g = search.grams(selection.delay)
@@ -132,6 +137,7 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
     # entry's own residual without it would hand its part to a collinear rival (a rotor spread
     # and a centre-of-gravity offset both make a steady roll torque)
     left, _ = search.residual(selection.chosen, selection.delay)
+    model = None
     for pk in selection.picks:
         if pk.name == DELAY.name:
             kept.append(pk)
@@ -153,14 +159,23 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
             size = float(np.sqrt(max(gains.sum(), 0.0) / len(search.blocks)))
             pk.history["beyond_state"] = {"z": z, "p": p, "size": size, "holds": bool(p <= alpha and size >= floor)}
             holds = holds and pk.history["beyond_state"]["holds"]
+        c = LIBRARY[pk.name]
+        if c.shape is not None:
+            # as the model holds it: beside every entry chosen and the delay, k_F and k_M as given
+            if model is None:
+                model = split_coefficients([NOMINAL.name, *selection.chosen],
+                                           search.fit_grams(selection.delay).solve(search.cols(selection.chosen)))
+            pk.history["shape"] = bool(c.shape(c.values(model[pk.name], search.vehicle)))
+            holds = holds and pk.history["shape"]
         (kept if holds else dropped).append(pk)
     chosen = [pk.name for pk in kept if pk.name != DELAY.name]
     return Selection(selection.rounds, kept, chosen, selection.delay, dropped)
 
 
 def _signs_ok(name: str, thetas: np.ndarray, search: Search, chosen: list[str]) -> bool:
-    """No coefficient with a physical sign is negative by more than two standard errors, and a
-    correction stays within its bound of the nominal value."""
+    """No coefficient with a physical sign is negative by more than two standard errors, a
+    correction stays within its bound of the nominal value, and the coefficients together have
+    the shape physics gives the entry (:attr:`~nanosysid.effects.Effect.shape`)."""
     c = LIBRARY[name]
     if c is DELAY:
         return True
@@ -173,6 +188,8 @@ def _signs_ok(name: str, thetas: np.ndarray, search: Search, chosen: list[str]) 
         values = c.values(mean, search.vehicle)
         if any(not np.isfinite(x) or abs(x) > c.bound * abs(n) for x, n in zip(values, c.nominal(search.vehicle))):
             return False
+    if c.shape is not None and not c.shape(c.values(mean, search.vehicle)):
+        return False
     return True
 
 
