@@ -173,9 +173,10 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
 
 
 def _signs_ok(name: str, thetas: np.ndarray, search: Search, chosen: list[str]) -> bool:
-    """No coefficient with a physical sign is negative by more than two standard errors, a
-    correction stays within its bound of the nominal value, and the coefficients together have
-    the shape physics gives the entry (:attr:`~nanosysid.effects.Effect.shape`)."""
+    """No coefficient with a physical sign is negative by more than two standard errors, and a
+    correction stays within its bound of the nominal value. The coefficients' joint shape is
+    judged once the selection is done (:func:`check_reference`): before the delay is chosen, a
+    lag's shares fit part of it and need not have a lag's shape."""
     c = LIBRARY[name]
     if c is DELAY:
         return True
@@ -188,8 +189,6 @@ def _signs_ok(name: str, thetas: np.ndarray, search: Search, chosen: list[str]) 
         values = c.values(mean, search.vehicle)
         if any(not np.isfinite(x) or abs(x) > c.bound * abs(n) for x, n in zip(values, c.nominal(search.vehicle))):
             return False
-    if c.shape is not None and not c.shape(c.values(mean, search.vehicle)):
-        return False
     return True
 
 
