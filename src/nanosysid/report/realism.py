@@ -42,6 +42,17 @@ def _median_frequency(x: np.ndarray, dt: float) -> float:
     return float(np.interp(0.5 * c[-1], c, edges))
 
 
+# the sensors whose white noise the comparison reads, with their units
+SENSORS = (("gyro", "rad/s"), ("accelerometer", "m/s²"), ("rotor speed", "rad/s"))
+
+
+def _noise(f: Flight) -> list[float]:
+    """Each of :data:`SENSORS`' white noise over a flight: the median over its axes of
+    :func:`_white`."""
+    acc = np.column_stack([f.extra[c] for c in ("ax_body", "ay_body", "az_body")])
+    return [float(np.median(_white(v))) for v in (f.y[:, 10:13], acc, f.u)]
+
+
 def _residual(f: Flight, vehicle: Vehicle, window: int, order: int) -> np.ndarray:
     """The nominal model's force (N) and torque (N m) residual ``(T', 6)``, the edges of the
     derivative's window left out."""
@@ -54,10 +65,8 @@ def _flight(f: Flight, r: np.ndarray, gravity: float) -> dict[str, float]:
            "tilt_max [°]": s["tilt_max"]}
     for i, ax in enumerate("xyz"):
         out[f"rate_{ax} RMS [rad/s]"] = float(np.sqrt(np.mean(f.y[:, 10 + i] ** 2)))
-    acc = np.column_stack([f.extra[c] for c in ("ax_body", "ay_body", "az_body")])
-    for name, values, unit in (("gyro", f.y[:, 10:13], "rad/s"), ("accelerometer", acc, "m/s²"),
-                               ("rotor speed", f.u, "rad/s")):
-        out[f"{name} noise [{unit}]"] = float(np.median(_white(values)))
+    for (name, unit), level in zip(SENSORS, _noise(f)):
+        out[f"{name} noise [{unit}]"] = level
     dt = float(np.median(np.diff(f.t)))
     for c, ch in enumerate(CHANNELS):
         unit = "mN" if c < 3 else "mN·m"
@@ -94,16 +103,12 @@ def noise_law(flights: Sequence[Flight]) -> dict[str, float]:
     ``inf`` where the noise does not grow."""
     from scipy.ndimage import uniform_filter1d
 
-    a, noise = [], []
-    for f in flights:
-        dt = float(np.median(np.diff(f.t)))
-        a.append(np.abs(np.gradient(uniform_filter1d(f.u, 5, axis=0), dt, axis=0)).mean())
-        acc = np.column_stack([f.extra[c] for c in ("ax_body", "ay_body", "az_body")])
-        noise.append([np.median(_white(v)) for v in (f.y[:, 10:13], acc, f.u)])
+    a = [np.abs(np.gradient(uniform_filter1d(f.u, 5, axis=0), float(np.median(np.diff(f.t))), axis=0)).mean()
+         for f in flights]
     A = np.column_stack([np.ones(len(a)), np.square(a)])
-    (b0, b1), *_ = np.linalg.lstsq(A, np.square(noise), rcond=None)
+    (b0, b1), *_ = np.linalg.lstsq(A, np.square([_noise(f) for f in flights]), rcond=None)
     return {name: float("inf") if g <= 0 else float(np.sqrt(max(c, 0.0) / g))
-            for name, c, g in zip(("gyro", "accelerometer", "rotor speed"), b0, b1)}
+            for (name, _), c, g in zip(SENSORS, b0, b1)}
 
 
 def compare(world: Mapping[str, Mapping[str, float]], real: Mapping[str, Mapping[str, float]],
