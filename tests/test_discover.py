@@ -87,6 +87,8 @@ WORLDS = {
     # the inertia (+45, +45, +75) % off the nominal, with the rotors' drag and twice the
     # propellers' gyro
     "yaw_inertia": ({"inertia_offset": 3.0, "rotor_drag": 1.0, "rotor_inertia": 2.0}, None, 3),
+    # half the rotors' wrench through a 0.3 s lag
+    "thrust_lag": ({"thrust_lag": 2.0}, None, 1),
     # rotors 4 to 7 % apart, and a centre of mass a third of a millimetre off: too small to be named
     "spread_cg": ({"motor_asymmetry": 2.0, "com_offset": 0.33}, None, 4),
 }
@@ -182,6 +184,32 @@ def test_the_rotor_speeds_noise_makes_no_inertia_or_arm_correction_in_a_world_wi
             assert np.all(np.abs(dj) < 0.08) and abs(dl) < 1.5e-3, (dj, dl)
         else:
             assert np.all(dj > 0.12) and dl < -4e-3, (dj, dl)
+
+
+def test_a_slow_actuations_shares_are_read_against_the_identified_k_f_with_what_it_took_of_the_lag_taken_out(
+        monkeypatch):
+    # the identify stage's k_F, least squares of the thrust on the squares, takes the lagging
+    # share's fluctuations for a smaller k_F; read against it as it is, the shares make up the
+    # missing thrust with a slow lead (a negative 1 s share) beside a larger 0.3 s one
+    from nanosysid.discover import search
+    from nanosysid.effects import lagged_k_f, split_coefficients
+    from nanosysid.identify import fit_thrust
+
+    discovered("clean")
+    train = [f for f in _flights["thrust_lag"] if f.trajectory != "melon"]
+    k_f = fit_thrust(train, Vehicle()).coef
+    share = 0.25 * 2.0
+    g, lag = {}, {}
+    for taken_out in (True, False):
+        if not taken_out:
+            monkeypatch.setattr(search, "lag_in_k_f", lambda oms, dt: ())
+        s = search.Search(train, Vehicle(k_f=k_f), 15, 3, 2.0, 10, hold_nominal=True)
+        lag[taken_out] = s.lag_in_k_f
+        g[taken_out] = split_coefficients(["nominal", "slow_actuation"],
+                                          s.fit_grams(0.0).solve(s.cols(["slow_actuation"])))["slow_actuation"]
+    assert g[False][2] < -0.01 and g[False][1] > share + 0.005, g[False]
+    assert abs(g[True][1] - share) < 0.01 and abs(g[True][2]) < 0.008, g[True]
+    assert abs(lagged_k_f(k_f, g[True], lag[True]) / Vehicle().k_f - 1) < 0.003
 
 
 @pytest.mark.parametrize("world,entry,rivals", [

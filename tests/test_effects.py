@@ -169,6 +169,32 @@ def test_slow_actuation_is_the_mixer_of_each_rotors_lag_behind_a_speed_step():
         assert np.all(cols[:, :2, k] == 0)
     # without the history the entry adds nothing (a model fed no history must not invent one)
     assert np.all(effects.features(["slow_actuation"], x, om[0], torch.zeros_like(om[0]), v).numpy() == 0)
+    # read against a k_F that took c_k of each lag: k_F (s + g (LP - (1 + c) s)) on the thrust and
+    # the roll/pitch torques; the yaw torque's k_M is a yaw sweep's, its columns as they were
+    c = (-0.01, -0.03, -0.05)
+    held = effects.features(["slow_actuation"], x, om[0], torch.zeros_like(om[0]), v, s_slow=torch.from_numpy(slow),
+                            lag_in_k_f=c).numpy()
+    for k in range(len(effects.SLOW_TIMES)):
+        lag = slow[:, 4 * k:4 * k + 4] - s
+        assert np.allclose(held[:, 2:5, k], _mixer(v, lag - c[k] * s)[:, :3], rtol=1e-9, atol=1e-12)
+        assert np.allclose(held[:, 5, k], _mixer(v, lag)[:, 3], rtol=1e-9, atol=1e-12)
+
+
+def test_what_least_squares_of_the_thrust_takes_of_a_lag_is_its_in_phase_loss_over_the_mean_square():
+    # S = A + B sin(w t) through y_n = (1 - a) y_(n-1) + a x_n, a = 1 - exp(-dt / T): its sine comes
+    # out times H = a / (1 - (1 - a) exp(-i w dt)), so <S, LP(S) - S> / n = B^2 / 2 (Re H - 1)
+    # and <S, S> / n = A^2 + B^2 / 2 (whole periods; the start's transient dies within 5 T)
+    dt, A, B, f = 0.01, 8.0e6, 2.0e6, 0.5
+    t = np.arange(0, 4000.0, dt)
+    S = A + B * np.sin(2 * np.pi * f * t)
+    om = np.repeat(np.sqrt(S / 4)[:, None], 4, axis=1)
+    got = effects.lag_in_k_f([om[:200000], om[200000:]], dt)
+    for T, c in zip(effects.SLOW_TIMES, got):
+        a = 1 - np.exp(-dt / T)
+        H = a / (1 - (1 - a) * np.exp(-1j * 2 * np.pi * f * dt))
+        assert c == pytest.approx(B ** 2 / 2 * (H.real - 1) / (A ** 2 + B ** 2 / 2), rel=0.003)
+    # and the rotors' own k_F undoes it to first order
+    assert effects.lagged_k_f(1.0, [0.0, 0.5, 0.0], got) == pytest.approx(1 - 0.5 * got[1])
 
 
 def test_a_slow_actuation_is_a_lag_only_where_its_step_response_never_falls_back():

@@ -47,6 +47,7 @@ from nanosysid.vehicle import Vehicle
 
 __all__ = ["CHANNELS", "Signals", "Effect", "LIBRARY", "NOMINAL", "DELAY", "TERM_SIGNALS", "signals", "features",
            "wrench", "split_coefficients", "entry", "term_name", "apply_corrections", "refitted_vehicle", "SLOW_TIMES",
+           "lag_in_k_f", "lagged_k_f",
            "INERTIA_SHARE",
            "VBAT_REF", "slow_squares"]
 
@@ -68,6 +69,10 @@ class Signals:
             constant major); empty where the history is not given (the entries that need it
             then add nothing).
         vbat: Battery voltage (V); None where not measured.
+        lag_in_k_f: Per time constant of :data:`SLOW_TIMES`, the share ``c_k`` of a lag that
+            least squares of the thrust on the squares takes into k_F (:func:`lag_in_k_f`):
+            given such a k_F, the slow actuation's columns are written relative to it; empty
+            where k_F is the rotors' own (the augmented model's, :func:`lagged_k_f`).
     """
 
     v: Sequence[Any]
@@ -78,6 +83,7 @@ class Signals:
     z: Any
     s_slow: Sequence[Any] = ()
     vbat: Any = None
+    lag_in_k_f: Sequence[float] = ()
 
 
 Columns = Callable[[Signals, Vehicle], list[list[Any]]]
@@ -271,15 +277,46 @@ def _rotor_wrench_rows(vehicle: Vehicle, per_rotor: Sequence[Any]) -> tuple[Any,
 
 def _slow_actuation(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
     # rotor i gives k (Omega_i^2 + sum_k g_k (LP_k(Omega_i^2) - Omega_i^2)): part of its thrust and
-    # drag torque follows the measured speed through a lag of time constant T_k
+    # drag torque follows the measured speed through a lag of time constant T_k. A k_F fitted by
+    # least squares without the lag is k (1 + sum_k g_k c_k): to first order in the shares, the
+    # thrust and the roll/pitch torques are k_F (Omega_i^2 + sum_k g_k (LP_k - (1 + c_k) Omega_i^2))
+    # (k_M comes from a yaw sweep, whose share of the lag is its own)
     rows = _zero_rows(len(SLOW_TIMES))
     if not sg.s_slow:
         return rows
     for k in range(len(SLOW_TIMES)):
         lag = [sg.s_slow[4 * k + i] - sg.s[i] for i in range(4)]
-        for r, value in zip((2, 3, 4, 5), _rotor_wrench_rows(vehicle, lag)):
+        rotors = _rotor_wrench_rows(vehicle, lag)
+        if sg.lag_in_k_f:
+            c = float(sg.lag_in_k_f[k])
+            rotors = (*_rotor_wrench_rows(vehicle, [x - c * s for x, s in zip(lag, sg.s)])[:3], rotors[3])
+        for r, value in zip((2, 3, 4, 5), rotors):
             rows[r][k] = value
     return rows
+
+
+def lag_in_k_f(oms: Sequence[np.ndarray], dt: float) -> tuple[float, ...]:
+    """Per time constant of :data:`SLOW_TIMES`, the share ``c_k`` of a slow actuation's lag that
+    least squares of the thrust on the squares, ``m a_z = k_F Σ Ω_i²`` without an intercept (the
+    identify stage's k_F), takes into k_F over flights of rotor speeds ``oms`` (each ``(T, 4)``
+    rad/s, sampled every ``dt`` s): with the thrust ``k (S + Σ_k g_k (LP_k(S) - S))``, ``S = Σ Ω_i²``,
+    that fit gives ``k (1 + Σ_k g_k c_k)``, ``c_k = <S, LP_k(S) - S> / <S, S>`` (below zero: a lag
+    takes the fluctuations' share off)."""
+    num, den = np.zeros(len(SLOW_TIMES)), 0.0
+    for om in oms:
+        om = torch.as_tensor(np.asarray(om, dtype=float))
+        total = (om * om).sum(-1).numpy()
+        slow = slow_squares(om[None], dt)[0].numpy().reshape(len(om), len(SLOW_TIMES), 4).sum(-1)
+        num += total @ (slow - total[:, None])
+        den += float(total @ total)
+    return tuple(float(x) for x in num / den)
+
+
+def lagged_k_f(k_f: float, shares: Sequence[float], lag: Sequence[float]) -> float:
+    """The rotors' own k_F (N s²/rad²) under a slow actuation of ``shares``, from a k_F fitted by
+    least squares without it that took ``lag`` (:func:`lag_in_k_f`) of each lag: to first order,
+    ``k_F (1 - Σ_k g_k c_k)``."""
+    return float(k_f * (1.0 - float(np.dot(shares, lag))))
 
 
 # the most a slow actuation's step response may fall back, as a share of its rise: shares of
@@ -490,14 +527,15 @@ def entry(name: str) -> Effect:
         raise KeyError(f"no effect {name!r} in the library; known: {', '.join(LIBRARY)}") from None
 
 
-def signals(x: Tensor, om: Tensor, om_dot: Tensor, s_slow: Tensor | None = None, vbat: Tensor | None = None) -> Signals:
+def signals(x: Tensor, om: Tensor, om_dot: Tensor, s_slow: Tensor | None = None, vbat: Tensor | None = None,
+            lag_in_k_f: Sequence[float] = ()) -> Signals:
     """The components of batched state ``(..., 13)``, rotor speeds and rates ``(..., 4)``, the
     squares' history ``(..., 4 * len(SLOW_TIMES))`` (:func:`slow_squares`) and the battery
-    voltage ``(...,)`` where given."""
+    voltage ``(...,)`` where given; ``lag_in_k_f``: see :class:`Signals`."""
     v_b = so3.quat_rotate(so3.quat_conj(x[..., 6:10]), x[..., 3:6])
     return Signals(v=v_b.unbind(-1), w=x[..., 10:13].unbind(-1), om=om.unbind(-1), s=(om * om).unbind(-1),
                    om_dot=om_dot.unbind(-1), z=x[..., 2], s_slow=() if s_slow is None else s_slow.unbind(-1),
-                   vbat=vbat)
+                   vbat=vbat, lag_in_k_f=tuple(lag_in_k_f))
 
 
 def slow_squares(om: Tensor, dt: float, start: Tensor | None = None) -> Tensor:
@@ -527,11 +565,12 @@ def slow_squares(om: Tensor, dt: float, start: Tensor | None = None) -> Tensor:
 
 
 def features(names: Sequence[str], x: Tensor, om: Tensor, om_dot: Tensor, vehicle: Vehicle, *,
-             s_slow: Tensor | None = None, vbat: Tensor | None = None) -> Tensor:
+             s_slow: Tensor | None = None, vbat: Tensor | None = None, lag_in_k_f: Sequence[float] = ()) -> Tensor:
     """The columns of the named effects side by side, ``(..., 6, sum P)``: the regression's
     features, and with coefficients ``theta`` the augmented model's wrench ``features @ theta``.
-    ``s_slow`` and ``vbat``: see :func:`signals` (the entries that need them are zero without)."""
-    sg = signals(x, om, om_dot, s_slow, vbat)
+    ``s_slow``, ``vbat`` and ``lag_in_k_f``: see :func:`signals` (the entries that need the first
+    two are zero without)."""
+    sg = signals(x, om, om_dot, s_slow, vbat, lag_in_k_f)
     # most entries are the constant 0: the output starts as zeros, and the signal columns and the
     # other constants go in with one copy each (the regression's and every rollout step's cost)
     cols: list[Tensor] = []

@@ -58,7 +58,8 @@ def disagreement(result, search, names: list[str], theta: np.ndarray, delay: flo
     the same reference (:func:`nanosysid.discover.sources.reference_pairs`), or -1."""
     train = search.data(delay)
     lib = search.terms(delay)[0] if generic_fits else None
-    test = [flight_data(f, search.vehicle, delay, window=search.window, order=search.order) for f in test_flights]
+    test = [flight_data(f, search.vehicle, delay, window=search.window, order=search.order,
+                         lag_in_k_f=search.lag_in_k_f) for f in test_flights]
     # "before" is the nominal model as given (its k_F and k_M not refitted): the residual of delay 0
     nominal = {"train": [d.r for d in search.data(0.0)],
                "test": [flight_data(f, search.vehicle, 0.0, window=search.window, order=search.order).r

@@ -5,6 +5,7 @@ training flights, and the plain SINDy model for comparison."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from typing import Any, Sequence
 
@@ -17,7 +18,7 @@ from nanosysid.discover.fit import EDGE
 from nanosysid.discover.model import AugmentedPredictor, AugmentedStep, integrated_names
 from nanosysid.discover.records import Finding
 from nanosysid.discover.search import Search
-from nanosysid.effects import LIBRARY, NOMINAL, refitted_vehicle
+from nanosysid.effects import LIBRARY, NOMINAL, lagged_k_f, refitted_vehicle
 from nanosysid.errors import DataError, PredictionError
 from nanosysid.metrics import QUANTITIES
 from nanosysid.numerics import LOOP_THREADS, threads
@@ -58,7 +59,12 @@ def assemble(vehicle: Vehicle, chosen: Sequence[str], coef: dict[str, list[float
     def vehicle_of(c: dict[str, list[float]]) -> Vehicle:
         dk_f, dk_m = c[NOMINAL.name]
         corrections = {n: LIBRARY[n].values(c[n], vehicle) for n in chosen if LIBRARY[n].kind == "correction"}
-        return refitted_vehicle(vehicle, dk_f, dk_m, corrections)
+        own = vehicle
+        if "slow_actuation" in chosen:
+            # the shares were fitted against the given k_F with what it took of the lag taken
+            # out; the model's rotors carry k_F without it, in the thrust and the roll/pitch torques
+            own = dataclasses.replace(vehicle, k_f=lagged_k_f(vehicle.k_f, c["slow_actuation"], search.lag_in_k_f))
+        return refitted_vehicle(own, dk_f, dk_m, corrections)
 
     def model(c: dict[str, list[float]], integrated, extra: dict[str, float]) -> AugmentedPredictor:
         names = named_wrench + list(extra)

@@ -203,11 +203,13 @@ class FlightData:
 
 
 def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int = 15, order: int = 3,
-                measured: np.ndarray | None = None, force_bias: bool = False) -> FlightData:
+                measured: np.ndarray | None = None, force_bias: bool = False,
+                lag_in_k_f: Sequence[float] = ()) -> FlightData:
     """The residual and the candidates' features of a flight, rotor speeds advanced by ``delay``;
     ``force_bias``: the force channels' flight means taken out of the residual and the columns
     (an accelerometer's bias is new at each power-up: a constant force of the flight's own that
-    no effect makes, told apart from the effects by how they vary within the flight)."""
+    no effect makes, told apart from the effects by how they vary within the flight);
+    ``lag_in_k_f``: what ``vehicle``'s k_F took of a slow actuation (:func:`effects.lag_in_k_f`)."""
     dt = float(np.median(np.diff(flight.t)))
     u = advance_inputs(torch.from_numpy(flight.u)[None], delay / dt)[0].numpy()  # read delay later
     om_dot = _smooth(u, window, order, deriv=1, delta=dt)
@@ -219,8 +221,8 @@ def flight_data(flight: Flight, vehicle: Vehicle, delay: float, *, window: int =
     vbat = None if vbat is None or not np.all(np.isfinite(vbat)) else torch.from_numpy(np.asarray(vbat, dtype=float))
     # every entry's columns in one array, smoothed in one call (the filter works column by
     # column, so each entry's are the same as smoothed alone), then cut into the entries' views
-    every = _smooth(effects.features(COLUMN_ENTRIES, x, om, od, vehicle, s_slow=slow, vbat=vbat).numpy(),
-                    window, order)[EDGE:-EDGE]
+    every = _smooth(effects.features(COLUMN_ENTRIES, x, om, od, vehicle, s_slow=slow, vbat=vbat,
+                                     lag_in_k_f=lag_in_k_f).numpy(), window, order)[EDGE:-EDGE]
     if force_bias:
         every[:, :3] -= every[:, :3].mean(axis=0)
     feats = dict(zip(COLUMN_ENTRIES, np.split(every, _COLUMN_ENDS[:-1], axis=-1)))
@@ -260,7 +262,8 @@ def input_noise(flight: Flight, chain: ChainFilter | None = None) -> np.ndarray:
 
 
 def input_noise_draws(flight: Flight, vehicle: Vehicle, delay: float, *, window: int, order: int,
-                      chain: ChainFilter | None, draws: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+                      chain: ChainFilter | None, draws: int, seed: int,
+                      lag_in_k_f: Sequence[float] = ()) -> tuple[np.ndarray, np.ndarray]:
     """What the rotor speeds' noise does to the columns and the residual: ``draws`` draws of
     noise like the flight's own (:func:`input_noise`, through ``chain``'s rotor filter), each carried
     through every step the recorded speeds take (the delay, the squares' slow history, the
@@ -279,7 +282,7 @@ def input_noise_draws(flight: Flight, vehicle: Vehicle, delay: float, *, window:
         om = advance_inputs(torch.from_numpy(u)[None], delay / dt)[0]
         od = torch.from_numpy(_smooth(om.numpy(), window, order, deriv=1, delta=dt))
         slow = effects.slow_squares(om[None], dt)[0]
-        f = effects.features(COLUMN_ENTRIES, x, om, od, vehicle, s_slow=slow, vbat=vbat).numpy()
+        f = effects.features(COLUMN_ENTRIES, x, om, od, vehicle, s_slow=slow, vbat=vbat, lag_in_k_f=lag_in_k_f).numpy()
         return _smooth(f, window, order)[EDGE:-EDGE], -_smooth(nominal_wrench(om.numpy(), vehicle), window, order)[EDGE:-EDGE]
 
     dx, dr = [], []

@@ -12,7 +12,7 @@ from nanosysid.dataio import Flight
 from nanosysid.discover import generic
 from nanosysid.discover.fit import (COLUMN_ENTRIES, EDGE, ChainFilter, FlightData, Grams, block_ids, flight_data,
                                     input_noise_draws, input_noise_grams, local_floor, measured_wrench, rotor_products)
-from nanosysid.effects import CHANNELS, DELAY, INERTIA_SHARE, NOMINAL, entry, split_coefficients
+from nanosysid.effects import CHANNELS, DELAY, INERTIA_SHARE, NOMINAL, entry, lag_in_k_f, split_coefficients
 from nanosysid.errors import DataError
 from nanosysid.vehicle import Vehicle
 
@@ -42,6 +42,9 @@ class Search:
         self._fit_grams: dict[float, Grams] = {}
         self._parent: Search | None = None
         self._skip = -1
+        # the given k_F is the identify stage's least squares on these flights: what it took of
+        # a slow actuation's lag, taken out of that entry's columns
+        self.lag_in_k_f = lag_in_k_f([f.u for f in self.flights], float(np.median(np.diff(self.flights[0].t))))
         self.measured = [measured_wrench(f, vehicle, window, order) for f in self.flights]
         local = [local_floor(f, vehicle, window, order, self.chain) for f in self.flights]
         self.noise_parts = np.sqrt(np.concatenate(local).mean(axis=0))
@@ -100,7 +103,7 @@ class Search:
             return [d for i, d in enumerate(self._parent.data(key)) if i != self._skip]
         if key not in self._data:
             self._data[key] = [flight_data(f, self.vehicle, key, window=self.window, order=self.order, measured=m,
-                                           force_bias=self.force_bias)
+                                           force_bias=self.force_bias, lag_in_k_f=self.lag_in_k_f)
                                for f, m in zip(self.flights, self.measured)]
         return self._data[key]
 
@@ -128,7 +131,7 @@ class Search:
         the speeds by less than the draws' own scatter."""
         if self._noise_grams is None:
             draws = [input_noise_draws(f, self.vehicle, 0.0, window=self.window, order=self.order,
-                                       chain=self.chain, draws=self.noise_draws, seed=i)
+                                       chain=self.chain, draws=self.noise_draws, seed=i, lag_in_k_f=self.lag_in_k_f)
                      for i, f in enumerate(self.flights)]
             self._noise_grams = input_noise_grams(draws, self.weights, self.blocks, self.folds)
         return self._noise_grams

@@ -382,11 +382,16 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
         searched = ("" if result.k_m.get("searched_with") != "least squares" else
                     " The search judged each candidate with k_F and k_M refitted alongside it by least squares, so "
                     "that a candidate is credited with what it adds; no coefficient of the model comes from that fit.")
-        L += [f"k_F and k_M are held at the identify stage's ({result.vehicle.k_f:.4g} N s²/rad² and "
+        given = result.nominal.step.vehicle.k_f
+        lagged = ("" if result.vehicle.k_f == given else
+                  f" Beside the slow actuation, the rotors' own k_F in the augmented model is {result.vehicle.k_f:.4g}: "
+                  "least squares of the thrust on the squares, the identify stage's fit, takes a lagging share's "
+                  "fluctuations for a smaller k_F, and the shares are read against its value with that taken out.")
+        L += [f"k_F and k_M are held at the identify stage's ({given:.4g} N s²/rad² and "
               f"{result.k_m['given']:.4g} N m s²/rad²) in the augmented model and in every coefficient fitted with "
               f"it; a least-squares refit of k_M on these closed-loop flights alongside what was found would give "
               f"{result.k_m['least_squares']:.4g} (the controller answers every yaw disturbance through the rotor "
-              f"speeds it regresses on).{searched}", ""]
+              f"speeds it regresses on).{searched}{lagged}", ""]
     elif result.k_m:
         L += [f"k_M: the identify stage's {result.k_m['given']:.4g} N m s²/rad²; discovery refits it by least squares "
               f"alongside what it found, {result.k_m['least_squares']:.4g}, which the augmented model uses. On "
