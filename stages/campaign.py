@@ -43,7 +43,7 @@ def main(cfg: DictConfig) -> dict:
                          sim=campaign.short_flights_config(float(c.duration), SimConfig.from_mapping(plain(cfg.sim.flight))),
                          sync=SyncConfig.from_mapping(plain(cfg.preprocess.sync)),
                          inertia_z_range=tuple(cfg.identify.inertia_z_range),
-                         velocity=str(cfg.discover.velocity))
+                         velocity=str(cfg.discover.velocity), flights_out=bool(cfg.discover.flights_out))
     counts = {k: int(v) for k, v in (plain(c.get("families")) or {}).items() if int(v)}
     unknown = set(counts) - set(campaign.FAMILIES)
     if unknown:

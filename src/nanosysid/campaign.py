@@ -237,8 +237,10 @@ class Setup:
     """What every world of a campaign shares: the nominal vehicle (the simulated body and
     discovery's nominal model), the split of the trajectories (the configuration's ``split``),
     the yaw calibration flight of the identify step (no part of discovery's data), the
-    simulator's settings and the sync stage's (the motor lag's estimate), and the velocity
-    discovery's regressors read (:func:`nanosysid.discover.run`'s ``velocity``)."""
+    simulator's settings and the sync stage's (the motor lag's estimate), the velocity
+    discovery's regressors read (:func:`nanosysid.discover.run`'s ``velocity``) and whether it
+    also searches without each training flight (``flights_out``, as the discover stage does: the
+    verdict ``unstable`` and the intervals from flights are part of what is judged)."""
 
     vehicle: Vehicle = field(default_factory=Vehicle)
     train: tuple[str, ...] = ("square", "random", "chirp")
@@ -248,6 +250,7 @@ class Setup:
     sync: SyncConfig = field(default_factory=SyncConfig)
     inertia_z_range: tuple[float, float] | None = None
     velocity: str = "position"
+    flights_out: bool = True
 
     @property
     def trajectories(self) -> tuple[str, ...]:
@@ -313,7 +316,8 @@ def judge(world: HiddenWorld, flights: Sequence, without: dict | None = None, *,
                         compile=setup.sim.compile)
     try:
         r = discover.run(train, test, vehicle=nominal, oracle=oracle, sindy=True, analysis=False, horizon=horizon,
-                         inertia_z_range=setup.inertia_z_range, diverged_ok=True, velocity=setup.velocity)
+                         inertia_z_range=setup.inertia_z_range, diverged_ok=True, velocity=setup.velocity,
+                         flights_out=setup.flights_out)
     except PredictionError as e:  # a rollout other than the augmented model's diverges: the world fails
         return {"world": world.index, "seed": world.seed, "effects": dict(world.effects), "user": world.user,
                 "user_strength": world.user_strength, "error": str(e), "identify": ident, "family": world.family}
