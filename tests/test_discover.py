@@ -212,6 +212,25 @@ def test_a_slow_actuations_shares_are_read_against_the_identified_k_f_with_what_
     assert abs(lagged_k_f(k_f, g[True], lag[True]) / Vehicle().k_f - 1) < 0.003
 
 
+def test_the_model_beside_a_slow_actuation_carries_the_rotors_own_k_f_and_says_so(tmp_path):
+    # the identify stage's k_F (1.5 % low under the lag) in, the rotors' own out: the augmented
+    # model's thrust is the world's, and its report gives the value beside the identify stage's
+    from nanosysid.identify import fit_thrust
+    from nanosysid.report.discovery import write_report
+
+    discovered("clean")
+    flights = _flights["thrust_lag"]
+    train = [f for f in flights if f.trajectory != "melon"]
+    given = fit_thrust(train, Vehicle()).coef
+    r = discover.run(train, [f for f in flights if f.trajectory == "melon"], vehicle=Vehicle(k_f=given),
+                     analysis=False)
+    assert "slow_actuation" in r.model.step.effects, [(f.verdict, f.entry) for f in r.findings]
+    assert given < 0.99 * Vehicle().k_f and abs(r.vehicle.k_f / Vehicle().k_f - 1) < 0.003, (given, r.vehicle.k_f)
+    write_report(r, tmp_path / "report")
+    text = (tmp_path / "report" / "report.md").read_text()
+    assert f"the rotors' own k_F in the augmented model is {r.vehicle.k_f:.4g}" in text
+
+
 @pytest.mark.parametrize("world,entry,rivals", [
     # a thrust torque off the centre is the roll and pitch modes of a rotor spread while the rotors
     # spin alike: only yaw manoeuvres (two pairs at different speeds) separate them, and under

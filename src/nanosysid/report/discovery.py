@@ -383,7 +383,7 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
                     " The search judged each candidate with k_F and k_M refitted alongside it by least squares, so "
                     "that a candidate is credited with what it adds; no coefficient of the model comes from that fit.")
         given = result.nominal.step.vehicle.k_f
-        lagged = ("" if result.vehicle.k_f == given else
+        lagged = ("" if "slow_actuation" not in result.model.step.effects else
                   f" Beside the slow actuation, the rotors' own k_F in the augmented model is {result.vehicle.k_f:.4g}: "
                   "least squares of the thrust on the squares, the identify stage's fit, takes a lagging share's "
                   "fluctuations for a smaller k_F, and the shares are read against its value with that taken out.")
