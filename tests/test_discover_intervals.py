@@ -3,7 +3,7 @@ noise, fitted with the folds and blocks discovery uses, many times over."""
 
 import numpy as np
 
-from nanosysid.discover.stats import half_width as _half_width, jackknife as _jackknife, spread
+from nanosysid.discover.stats import half_width as _half_width, hodges_lehmann, jackknife as _jackknife, spread
 from nanosysid.discover.fit import Grams
 
 
@@ -52,6 +52,16 @@ def test_the_quantile_is_students_t_with_a_degree_fewer_than_the_groups():
     # tables: t_0.975 with 9 degrees of freedom is 2.262, with 1 it is 12.706
     assert abs(_half_width(1.0, 10) - 2.262) < 1e-3
     assert abs(_half_width(0.5, 2) - 0.5 * 12.706) < 1e-2
+
+
+def test_the_gain_per_block_is_the_median_of_the_pairwise_means_not_moved_by_one_wild_block():
+    # Walsh averages of (1, 2, 3, -1000), worked by hand: -1000, -499.5, -499, -498.5, 1, 1.5,
+    # 2, 2, 2.5, 3; their median is (1 + 1.5) / 2, while the mean is -248.5
+    assert hodges_lehmann(np.array([1.0, 2.0, 3.0, -1000.0])) == 1.25
+    # for gains drawn around a centre, it estimates the centre (the standard error of a sample's
+    # location is 1 / sqrt(400) = 0.05 here)
+    rng = np.random.default_rng(3)
+    assert abs(hodges_lehmann(rng.normal(2.0, 1.0, 400)) - 2.0) < 0.2
 
 
 def test_a_coefficient_held_fixed_is_the_fit_of_what_it_leaves():

@@ -21,7 +21,7 @@ from nanosysid.discover.records import Candidate, Pick
 from nanosysid.discover.fit import COLUMN_ENTRIES
 from nanosysid.discover.search import Search, channels_of
 from nanosysid.discover.sources import HISTORY_REPEAT, Pairs, reference_check
-from nanosysid.discover.stats import jackknife, pvalue
+from nanosysid.discover.stats import hodges_lehmann, jackknife, pvalue
 from nanosysid.effects import CHANNELS, DELAY, LIBRARY, NOMINAL, entry, split_coefficients
 
 __all__ = ["Selection", "select", "prune", "check_reference"]
@@ -156,7 +156,9 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
             with_it, _ = g.heldout(search.cols(base + [pk.name]))
             gains = without - with_it
             z, p = pvalue(gains)
-            size = float(np.sqrt(max(gains.sum(), 0.0) / len(search.blocks)))
+            # the gain per block the signed-rank test measures: the sum's would let one block
+            # that the many state entries fitted at once extrapolate wildly decide it
+            size = float(np.sqrt(max(hodges_lehmann(gains), 0.0)))
             pk.history["beyond_state"] = {"z": z, "p": p, "size": size, "holds": bool(p <= alpha and size >= floor)}
             holds = holds and pk.history["beyond_state"]["holds"]
         c = LIBRARY[pk.name]

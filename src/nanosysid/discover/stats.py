@@ -23,6 +23,17 @@ def pvalue(g: np.ndarray) -> tuple[float, float]:
     return float(norm.isf(p)), p
 
 
+def hodges_lehmann(g: np.ndarray) -> float:
+    """The Hodges-Lehmann location of the per-block gains ``g``: the median of the pairwise
+    means ``(g_i + g_j) / 2``, ``i <= j``, the estimate that goes with the signed-rank test of
+    :func:`pvalue` (one block's wild held-out loss moves it by one rank, not by its size)."""
+    g = np.asarray(g, dtype=float)
+    if len(g) == 0:
+        return 0.0
+    i, j = np.triu_indices(len(g))
+    return float(np.median(0.5 * (g[i] + g[j])))
+
+
 def jackknife(thetas: np.ndarray) -> np.ndarray:
     """Delete-a-group jackknife standard error from the estimates ``(n, k)`` each fitted without
     one of ``n`` groups."""
