@@ -203,7 +203,9 @@ def record_flight(
 
     # IMU: gyro and accelerometer, their noise the airframe's vibration; the accelerometer's bias
     # is this power-up's
-    vib = vibration_scale(om_true, 1.0 / cfg.onboard_rate, noise.vibration_ref)[:, None]
+    # the airframe shakes with the rotors as they turn
+    vib = vibration_scale(interp_columns(tau_all, raw.turning(i), tau_o), 1.0 / cfg.onboard_rate,
+                          noise.vibration_ref)[:, None]
     gyro = w_true + vib * rng.normal(scale=noise.gyro, size=(n, 3))
     acc = acc_true + vib * rng.normal(scale=noise.accel, size=(n, 3)) + accel_bias(noise, rng)
     Imu, QuatT = T["sensor_msgs/msg/Imu"], T["geometry_msgs/msg/Quaternion"]

@@ -28,7 +28,7 @@ from nanosysid.numerics import LOOP_THREADS, compiled, quiet_tracing, threads
 from nanosysid.settings import configured, defaults
 from nanosysid.sim.controller import ControllerState, Mellinger, MellingerGains
 from nanosysid.sim.trajectories import Reference, make_reference
-from nanosysid.sim.world import DEFAULT_WORLD, REALISATION_START, ExtraWrench, Nature, World
+from nanosysid.sim.world import DEFAULT_WORLD, REALISATION_START, SLOW_ACTUATION_TIME, ExtraWrench, Nature, World
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["SimConfig", "NoiseConfig", "FlightSpec", "RawRecord", "simulate", "simulate_raw", "flights_from_record",
@@ -173,12 +173,17 @@ class RawRecord:
         names, trajectories, runs, seeds, worlds: One entry per flight.
         t: Time ``(N,)`` in s; 0 is the start of the trajectories, negative in the pre-roll.
         x: States ``(B, N, 13)``.
-        omega: Rotor speeds ``(B, N, 4)`` (rad/s) and ``omega_dot`` their rates (rad/s^2).
+        omega: The speeds ``(B, N, 4)`` (rad/s) whose squares the rotors' wrench follows: the
+            turning speeds, unless a slow lag of the wrench (the world's ``thrust_lag``) sets
+            the two apart (:meth:`turning`).
+        omega_dot: The turning speeds' rates ``(B, N, 4)`` (rad/s^2).
         wrench: Body-frame force (N) and torque (N m) ``(B, N, 6)``, rotors and effects together.
         p_ref: Position setpoints ``(B, N, 3)`` (m), held between control instants.
         yaw_ref: Yaw setpoints ``(B, N)`` (rad), held the same way.
         durations: Trajectory durations (s).
         rngs: Each flight's generator of measurement noise.
+        omega_turning: The rotors' turning speeds ``(B, N, 4)`` (rad/s) where they are not
+            :attr:`omega`; None where no flight has a slow lag.
     """
 
     names: list[str]
@@ -195,12 +200,12 @@ class RawRecord:
     yaw_ref: np.ndarray
     durations: list[float]
     rngs: list[np.random.Generator]
+    omega_turning: np.ndarray | None = None
 
     def turning(self, i: int) -> np.ndarray:
-        """Flight ``i``'s rotor speeds ``(N, 4)`` (rad/s) as the rotors turn: :attr:`omega` are
-        those the simulated wrench's squares give, which a slow lag of the wrench (the world's
-        ``thrust_lag``) sets apart from the turning ones; what any record of the rotors reads."""
-        return self.worlds[i].speeds_for(self.omega[i], float(self.t[1] - self.t[0]))
+        """Flight ``i``'s rotor speeds ``(N, 4)`` (rad/s) as the rotors turn: what any record of
+        the rotors reads."""
+        return self.omega[i] if self.omega_turning is None else self.omega_turning[i]
 
 
 @threads(LOOP_THREADS)
@@ -292,16 +297,19 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
     x[:, 0:3] = p_ref[:, 0] + torch.from_numpy(offsets)
     x[:, 9] = 1.0
     x[:, 13:] = vehicle.hover_speed
+    lag = torch.full((B, 4), float(vehicle.hover_speed) ** 2, dtype=torch.float64)  # the slow lag at rest in hover
     ctrl = Mellinger(vehicle, cfg.gains, dt=ctrl_every * dt, omega_min=cfg.omega_min, omega_max=cfg.omega_max)
     cstate = ControllerState.zeros(B)
     params = vehicle.dynamics_kwargs()
     if nature.inertia is not None:
         params["inertia"] = nature.inertia
     base = functools.partial(dynamics.quad_dynamics, **params)
-    parts = dict(nature=nature, base=base, ctrl=ctrl, motor_tau=cfg.motor_tau, dt=dt)
+    parts = dict(nature=nature, base=base, ctrl=ctrl, motor_tau=cfg.motor_tau, dt=dt,
+                 lag_gain=float(-np.expm1(-dt / SLOW_ACTUATION_TIME)))
     advance = _compiled_advance() if cfg.compile else _advance
 
-    states, cmds, wrenches = [], [], []  # state (17), rotor command (4) and the world's wrench (6) at every step
+    # state (17), rotor command (4), the world's wrench (6) and the slow lag (4) at every step
+    states, cmds, wrenches, lags = [], [], [], []
     bar = tqdm(total=n_steps, desc=f"simulate {shown} flights", unit="step", unit_scale=True,
                disable=not progress, mininterval=1.0)
     with torch.inference_mode(), quiet_tracing():
@@ -313,8 +321,9 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
             control = k % ctrl_every == 0
             j = k // ctrl_every
             states.append(x)
-            x, cmd, ctl, wrench = advance(x, cmd, ctl, p_ref[:, j], v_ref[:, j], a_ref[:, j],
-                                          yaw_ref[:, j] if yaws else None, t_steps[k], control=control, **parts)
+            lags.append(lag)
+            x, cmd, ctl, lag, wrench = advance(x, cmd, ctl, lag, p_ref[:, j], v_ref[:, j], a_ref[:, j],
+                                               yaw_ref[:, j] if yaws else None, t_steps[k], control=control, **parts)
             cmds.append(cmd)
             wrenches.append(wrench)
             if k % 1000 == 999:
@@ -333,8 +342,12 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
 
     # body force and torque: the rotors' of the whole record at once, the world's as the loop had it
     t = np.arange(n_steps) * dt - cfg.preroll
-    xs, om, cmd_rec = rec[..., :13], rec[..., 13:17], rec[..., 17:]
-    om_dot = (cmd_rec - om) / cfg.motor_tau
+    xs, om_turning, cmd_rec = rec[..., :13], rec[..., 13:17], rec[..., 17:]
+    om_dot = (cmd_rec - om_turning) / cfg.motor_tau
+    om = om_turning
+    if nature.slow_share is not None:
+        g = nature.slow_share[:B].view(B, 1, 1)
+        om = torch.where(g > 0, torch.sqrt((1 - g) * om * om + g * torch.stack(lags, 1)[:B]), om)
     thrust, tau = dynamics.rotor_wrench(om, k_f=vehicle.k_f, k_m=vehicle.k_m, arm=vehicle.arm)
     world = torch.stack(wrenches, 1)[:B]
     f_b, tau = F.pad(thrust.unsqueeze(-1), (2, 0)) + world[..., :3], tau + world[..., 3:]
@@ -354,17 +367,21 @@ def _simulate_raw(flights: Sequence[FlightSpec], vehicle: Vehicle, cfg: SimConfi
         yaw_ref=yaw_ref[:B].repeat_interleave(ctrl_every, dim=1)[:, :n_steps].numpy(),
         durations=[r.duration for r in refs[:B]],
         rngs=rngs[:B],
+        omega_turning=None if om is om_turning else om_turning.numpy(),
     )
 
 
-def _advance(x: torch.Tensor, cmd: torch.Tensor, ctl: torch.Tensor, p_ref: torch.Tensor,
+def _advance(x: torch.Tensor, cmd: torch.Tensor, ctl: torch.Tensor, lag: torch.Tensor, p_ref: torch.Tensor,
              v_ref: torch.Tensor, a_ref: torch.Tensor, yaw_ref: torch.Tensor | None, t: torch.Tensor, *,
-             control: bool, nature: Nature, base, ctrl: Mellinger, motor_tau: float, dt: float):
+             control: bool, nature: Nature, base, ctrl: Mellinger, motor_tau: float, dt: float, lag_gain: float):
     """One physics step of the batch ``(B, 17)`` (rigid body and rotor speeds), the controller run
-    first at a control instant; ``t (B,)`` is the step's start (s). Returns the next state, the
-    rotor command held over the step, the controller's state ``(B, 9)`` (``i_pos``, ``i_att``,
-    ``prev_ew``: one tensor, whose layout stays the same from step to step), and the world's
-    body force and torque ``(B, 6)`` at the step's start."""
+    first at a control instant; ``t (B,)`` is the step's start (s); ``lag (B, 4)`` the slow lag's
+    state (rad²/s², the low-passed squares of the turning speeds, held over the step: its time
+    constant is a hundred steps). Returns the next state, the rotor command held over the step,
+    the controller's state ``(B, 9)`` (``i_pos``, ``i_att``, ``prev_ew``: one tensor, whose layout
+    stays the same from step to step), the slow lag's next state (the exact first-order update,
+    gain ``lag_gain``, toward the new squares) and the world's body force and torque ``(B, 6)``
+    at the step's start."""
     if control:
         cmd, cs = ctrl(x[:, :13], p_ref, v_ref, a_ref, ControllerState(*ctl.split(3, dim=-1)), yaw_ref)
         ctl = torch.cat((cs.i_pos, cs.i_att, cs.prev_ew), -1)
@@ -374,14 +391,19 @@ def _advance(x: torch.Tensor, cmd: torch.Tensor, ctl: torch.Tensor, p_ref: torch
     def deriv(z: torch.Tensor, u: torch.Tensor, tk: torch.Tensor) -> torch.Tensor:
         om = z[:, 13:]
         om_dot = (u - om) / motor_tau
+        w, w_dot = nature.lagged(om, om_dot, lag)  # the speeds the wrench follows
         if nature.active:
-            force, torque = nature.wrench(tk, z[:, :13], om, om_dot)
+            force, torque = nature.wrench(tk, z[:, :13], w, w_dot)
         else:
             force, torque = torch.zeros_like(z[:, :3]), torch.zeros_like(z[:, :3])
         stages.append(torch.cat((force, torque), -1))
-        return torch.cat((base(z[:, :13], om, force_body=force, torque_body=torque), om_dot), dim=-1)
+        return torch.cat((base(z[:, :13], w, force_body=force, torque_body=torque), om_dot), dim=-1)
 
-    return dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, t=t), cmd, ctl, stages[0]
+    x = dynamics.integrate(deriv, x, cmd, dt=dt, substeps=1, t=t)
+    if nature.slow_share is not None:
+        om = x[:, 13:]
+        lag = lag + lag_gain * (om * om - lag)
+    return x, cmd, ctl, lag, stages[0]
 
 
 @functools.cache
@@ -422,12 +444,13 @@ def flights_from_record(raw: RawRecord, *, vehicle: Vehicle, cfg: SimConfig, noi
         idx = start + every * np.arange(n)
         y_true = raw.x[i, idx]
         omega_true = raw.omega[i, idx]
+        turning = raw.turning(i)
         # recorded rotor speeds lag the true ones: sample the true history d seconds earlier
-        u_rec = interp_columns(raw.t, raw.turning(i), raw.t[idx] - raw.worlds[i].telemetry_delay)
+        u_rec = interp_columns(raw.t, turning, raw.t[idx] - raw.worlds[i].telemetry_delay)
         acc_true = raw.wrench[i, idx, :3] / vehicle.mass  # specific force in the body frame
         y, u, acc = y_true.copy(), u_rec, acc_true.copy()
         if noise:
-            y, u, acc = _add_noise(y, u, acc, omega_true, cfg.noise, raw.rngs[i], 1.0 / cfg.output_rate)
+            y, u, acc = _add_noise(y, u, acc, turning[idx], cfg.noise, raw.rngs[i], 1.0 / cfg.output_rate)
         extra = {c: acc[:, j] for j, c in enumerate(ACCEL_COLUMNS)}
         truth = np.concatenate((omega_true, y_true, acc_true, raw.wrench[i, idx]), axis=1)
         extra.update({c: truth[:, j].copy() for j, c in enumerate(TRUTH_COLUMNS)})
@@ -490,8 +513,7 @@ def _add_noise(y, u, acc, omega_true, n: NoiseConfig, rng: np.random.Generator, 
         y[:, 3:6] += velocity_drift(T, n, dt, rng)
     y[:, 6:10] = perturb_attitude(y[:, 6:10], n.att, rng)
     y[:, 10:13] += g * rng.normal(scale=n.gyro, size=(T, 3))
-    # a rotor's speed sensor reads a magnitude: a rotor at rest (a slow lag's inverse can ask one to
-    # stop) reads 0, never below
+    # a rotor's speed sensor reads a magnitude: a rotor near rest reads 0, never below
     u = np.maximum(u + g * rng.normal(scale=n.rotor, size=u.shape), 0.0)
     acc = acc + g * rng.normal(scale=n.accel, size=acc.shape) + accel_bias(n, rng)
     return y, u, acc

@@ -83,7 +83,10 @@ UNSTEADY_THRUST_BAND = 3.0  # Hz
 # of each rotor's thrust and drag torque follows k Omega^2 through a slow first-order lag
 SLOW_ACTUATION = 0.25  # share of the rotor's wrench that lags, at strength 1 (at most MAX_SLOW_SHARE)
 SLOW_ACTUATION_TIME = 0.3  # s, the lag's time constant
-MAX_SLOW_SHARE = 0.8
+# With more than half the wrench 0.3 s behind the rotors, the vehicle's controller (which, like the
+# rig's, takes the thrust for the rotors' at once) no longer flies the trajectories: the Square
+# and the Melon diverge at a share of 0.6
+MAX_SLOW_SHARE = 0.5
 
 # w @ _GYRO = (-w_y, w_x, 0)
 _GYRO = torch.tensor([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 0.0]], dtype=torch.float64)
@@ -341,7 +344,8 @@ RECORDS: tuple[WorldEffect, ...] = (
         truth=("input_delay", lambda s, vehicle: [s * TELEMETRY_DELAY])),
     WorldEffect(
         "thrust_lag", "part of each rotor's thrust and drag torque follows its speed through a slow lag",
-        f"a share {SLOW_ACTUATION:g} of each rotor's thrust and drag torque follows k Omega^2 through a first-order "
+        f"a share {SLOW_ACTUATION:g} per unit strength (at most {MAX_SLOW_SHARE:g}) of each rotor's thrust and drag "
+        f"torque follows k Omega^2 through a first-order "
         f"lag of {SLOW_ACTUATION_TIME:g} s (the recorded speeds are the rotors'; the wrench lags them)",
         "the rotor speeds' history", default=0.0, described_by=frozenset({"slow_actuation"}),
         truth=("slow_actuation", lambda s, vehicle: [0.0, min(s * SLOW_ACTUATION, MAX_SLOW_SHARE), 0.0])),
@@ -477,18 +481,6 @@ class World:
             return s
         return (1.0 - g) * s + g * _lowpass(s, dt, SLOW_ACTUATION_TIME)
 
-    def speeds_for(self, omega: np.ndarray, dt: float) -> np.ndarray:
-        """The rotor speeds ``(T, 4)`` whose :meth:`effective_squares` are ``omega (T, 4)``
-        squared (the inverse of the slow lag: what a rotor turns at while its wrench follows
-        ``omega``)."""
-        g = self.slow_share
-        if not g:
-            return omega
-        s_true = omega ** 2
-        # LP_T(s) of the speeds sought is LP_(T (1 - g))(s_true)
-        lag = _lowpass(s_true, dt, SLOW_ACTUATION_TIME * (1.0 - g))
-        return np.sqrt(np.clip((s_true - g * lag) / (1.0 - g), 0.0, None))
-
     def inertia(self, vehicle: Vehicle) -> tuple[float, float, float]:
         """The body's true inertia diagonal (kg m^2)."""
         k = self.s("inertia_offset")
@@ -610,6 +602,10 @@ class Nature:
                       if e.wrench is not None]
         self.channels = [(e, cols) for e, cols in _channels() if on(e)]
         self.mixer_t = M.T
+        # (B, 1): each flight's share of the rotors' wrench behind the slow lag
+        self.slow_share = None
+        if complete or any(w.slow_share for w in worlds):
+            self.slow_share = torch.tensor([[w.slow_share] for w in worlds], dtype=dtype)
         self.inertia = None
         if complete or any(w.s("inertia_offset") for w in worlds):
             self.inertia = stack(w.inertia(vehicle) for w in worlds)  # (B, 3)
@@ -653,6 +649,20 @@ class Nature:
             cache[key] = (shaped(self.per_omega2), shaped(self.per_omega_rate),
                           [{k: shaped(v) for k, v in c.items()} for _, c in self.terms])
         return cache[key]
+
+    def lagged(self, omega: Tensor, omega_dot: Tensor, lag: Tensor) -> tuple[Tensor, Tensor]:
+        """The speeds ``(B, ..., 4)`` (rad/s) whose squares the rotors' wrench follows, and their
+        rates (rad/s^2), from the turning speeds ``omega``, their rates ``omega_dot`` and the
+        slow lag's state ``lag`` (LP of ``omega``², rad²/s²): ``sqrt((1 - g) omega² + g lag)``,
+        ``g`` the flight's :attr:`World.slow_share`; where ``g`` is 0, ``omega`` and
+        ``omega_dot`` themselves (their bytes)."""
+        if self.slow_share is None:
+            return omega, omega_dot
+        g = self._per_flight(self.slow_share.to(omega.dtype), omega)
+        w = torch.sqrt((1 - g) * omega * omega + g * lag)
+        w_dot = ((1 - g) * omega * omega_dot + g * (omega * omega - lag) / (2 * SLOW_ACTUATION_TIME)) / w
+        on = g > 0
+        return torch.where(on, w, omega), torch.where(on, w_dot, omega_dot)
 
     def body_inertia(self, x: Tensor) -> Tensor | None:
         """The true inertia diagonal shaped for ``x``, or None where it is the nominal one."""
