@@ -63,6 +63,8 @@ def rig_main(cfg: DictConfig) -> None:
     bench = protocol.load(cfg.paths.split, horizon=int(cfg.eval.horizon))
     results = rig.results_beside_paper(scores)
     comparison = paper.compare_results({m: s for m, s in scores.items() if m in paper.PAPER_MODELS})
+    sim_stats = json.loads((Path(cfg.paths.sim_report) / "stats.json").read_text())
+    paper.compare_world(comparison, {(r["model"], r["quantity"]): r["ours"] for r in sim_stats.get("ratios", [])})
     causes = rig.measured_causes(results, scores)
     sync = json.loads((Path(cfg.preprocess.report_dir) / "sync.json").read_text())
     logs_dir, flights = Path(cfg.rig.paths.raw), plain(cfg.rig.logs.flights)
@@ -75,7 +77,7 @@ def rig_main(cfg: DictConfig) -> None:
     alignment, lag_rec = rig.alignment_section(sync, authors)
     yaw_ref = rig.yaw_reference_ranges(Path(cfg.preprocess.extract_dir))
     yaw = {f.name: rig.yaw_range(f) for f in bench.train + bench.test}
-    sim_ident = json.loads((Path(cfg.paths.sim_report) / "stats.json").read_text()).get("identification", {}).get("k_m")
+    sim_ident = sim_stats.get("identification", {}).get("k_m")
     ident, ident_rec = rig.identification_section(
         identify.read_identified(Path(cfg.identify.out_dir) / "params.json"), yaw_ref, yaw,
         {"paper_method": sim_ident["paper_method"], "nature": sim_ident["nature"]} if sim_ident else None)

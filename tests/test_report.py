@@ -169,6 +169,46 @@ def test_a_pattern_unlike_the_papers_fails_its_criteria():
     assert "0.0252 / 0.0126 (2.00 ✗)" in text and "- ✗ naive and physics rows within x1.5" in text
 
 
+def test_a_worlds_ratio_that_misses_the_papers_passes_only_where_the_real_flights_miss_it_the_same_way():
+    from nanosysid.report import paper
+
+    # on the real flights an LSTM 20 % better on ω than physics: 0.80 against the paper's
+    # 35.8353 / 29.0866 = 1.2320, 35 % below it; the other cells the paper's own
+    rows = {m: paper_like(m) for m in PAPER}
+    rows["lstm"] = paper_like("lstm", {"w": 0.80 * 29.0866 / 35.8353})
+    real = paper.compare_results(rows)
+    world = {key: ours for key, (ours, _) in real.ratios.items()}
+    world[("lstm", "w")] = 0.70   # below the paper's, as the real flights, and 0.70 / 0.80 = 0.875 of theirs
+    world[("lstm", "p")] = 2.57 * 1.30  # 30 % above the paper's 5.9711 / 2.3223 = 2.5712, where the real flights meet it
+    world[("lstm", "v")] = 1.57 * 0.80  # 20 % below the paper's 16.7207 / 10.6232 = 1.5740: within 25 %
+    world[("residual", "R")] = 0.85  # 28 % below the paper's 6.0591 / 5.1013 = 1.1878; the real flights sit on it
+    paper.compare_world(real, world)
+    assert real.world[("lstm", "w")] == (0.70, paper.AS_REAL)
+    assert real.world[("lstm", "p")][1] == paper.OFF and real.world[("residual", "R")][1] == paper.OFF
+    assert real.world[("lstm", "v")][1] == paper.WITHIN and real.world[("phys_res", "p")][1] == paper.WITHIN
+    check = "the default world's ratios within 25% of the paper's, or missing it as the real flights do"
+    assert not real.checks[check]
+    world[("lstm", "p")], world[("residual", "R")] = real.ratios[("lstm", "p")][0], real.ratios[("residual", "R")][0]
+    again = paper.compare_results(rows)
+    paper.compare_world(again, {key: r for key, r in world.items() if key != ("phys_res", "p")})
+    assert again.checks[check] and ("phys_res", "p") not in again.world  # a cell the world lacks is left out
+    # a world 45 % below the paper's, where the real flights are 35 % below: 0.6776 / 0.80 = 0.85 of theirs
+    world[("lstm", "w")] = 0.55 * 1.2320
+    third = paper.compare_results(rows)
+    paper.compare_world(third, world)
+    assert third.world[("lstm", "w")][1] == paper.AS_REAL
+    world[("lstm", "w")] = 0.55  # 0.55 / 0.80 = 0.69 of the real flights' ratio: off
+    fourth = paper.compare_results(rows)
+    paper.compare_world(fourth, world)
+    assert fourth.world[("lstm", "w")][1] == paper.OFF and not fourth.checks[check]
+    text = paper.results_markdown(fourth)
+    assert "| lstm / physics, the default world | 2.57 ✓ | 1.26 ✓ | 1.11 ✓ | 0.55 ✗ |" in text
+    assert "| phys_res / physics, the default world |" not in paper.results_markdown(again)  # a row only whole
+    text = paper.results_markdown(third)
+    assert "| residual / physics, the default world | 1.74 ✓ | 1.18 ✓ | 1.19 ✓ | 1.22 ✓ |" in text
+    assert "0.68 ≈ |" in text and json.loads(json.dumps(third.to_dict()))["world"]
+
+
 def test_the_campaigns_world_table_holds_strict_json_with_an_open_interval_end_as_null():
     # a delay found at the search's largest has an interval open above
     from nanosysid.report.campaign import worlds_table

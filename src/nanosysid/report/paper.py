@@ -17,7 +17,7 @@ from nanosysid.protocol import Scores
 from nanosysid.metrics import QUANTITIES
 
 __all__ = ["PAPER_COST", "PAPER_STATS", "PAPER_RESULTS", "PAPER_MODELS", "PAPER_IDENTIFIED", "Comparison", "compare_results",
-           "compare_identification", "results_markdown", "identification_markdown"]
+           "compare_identification", "compare_world", "results_markdown", "identification_markdown"]
 
 # The paper's table of model costs: parameters [k], compute [kFLOPs], T_inf on the STM32 [ms].
 PAPER_COST = {
@@ -67,6 +67,8 @@ class Comparison:
         ratios: ``(model, quantity) -> (ours, paper)``: the model's SimErr over physics'.
         best: ``quantity -> (ours, paper, paper's margin)``: the model with the least SimErr.
         checks: criterion -> whether it holds.
+        world: ``(model, quantity) -> (ratio, verdict)``: the default world's ratio beside the
+            real flights' ``ratios`` (:func:`compare_world`).
     """
 
     rows: dict[tuple[str, str, int], tuple[float, float]] = field(default_factory=dict)
@@ -74,6 +76,7 @@ class Comparison:
     best: dict[str, tuple[str, str, float]] = field(default_factory=dict)
     checks: dict[str, bool] = field(default_factory=dict)
     identification: dict[str, Any] = field(default_factory=dict)
+    world: dict[tuple[str, str], tuple[float, str]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -82,6 +85,8 @@ class Comparison:
             "best": {k: {"ours": a, "paper": b, "paper_margin": c} for k, (a, b, c) in self.best.items()},
             "checks": self.checks,
             "identification": self.identification,
+            **({"world": [{"model": m, "quantity": k, "ratio": a, "verdict": v} for (m, k), (a, v) in self.world.items()]}
+               if self.world else {}),
         }
 
 
@@ -130,6 +135,40 @@ def compare_results(scores: Mapping[str, Scores], *, factor: float = 1.5, ratio_
         c.checks[f"best model of each SimErr column as the paper's where its margin is over {margin:.0%}"] = all(
             ours == paper for ours, paper, pm in c.best.values() if pm > margin)
     return c
+
+
+# A verdict on one of the default world's ratios, beside the paper's and the real flights'
+WITHIN, AS_REAL, OFF = "within", "as the real flights", "off"
+
+
+def compare_world(real: Comparison, world: Mapping[tuple[str, str], float], *, ratio_tolerance: float = 0.25) -> None:
+    """The default world's pattern beside the paper's and the real flights' (``real``: the
+    comparison on the paper's own flights), into ``real.world`` and a check.
+
+    A simulated world stands for the rig: where the pipeline on the paper's own flights misses the
+    paper's ratio, the world is expected to miss it the same way, not to reproduce the paper. Each
+    world ratio is within ``ratio_tolerance`` of the paper's, or misses it as the real flights do:
+    within ``ratio_tolerance`` of the real flights' ratio (which puts a miss on the same side of the
+    paper's as theirs); else it is off.
+
+    Args:
+        real: The comparison on the real flights (its ``ratios`` filled).
+        world: ``(model, quantity) -> SimErr ratio`` on the default world's test flights.
+    """
+    for key, (ours, paper) in real.ratios.items():
+        if key not in world:
+            continue
+        w = float(world[key])
+        if abs(w / paper - 1) <= ratio_tolerance:
+            verdict = WITHIN
+        elif abs(w / ours - 1) <= ratio_tolerance:
+            verdict = AS_REAL
+        else:
+            verdict = OFF
+        real.world[key] = (w, verdict)
+    if real.world:
+        real.checks[f"the default world's ratios within {ratio_tolerance:.0%} of the paper's, or missing it as the "
+                    "real flights do"] = all(v != OFF for _, v in real.world.values())
 
 
 def _within(fit: Mapping[str, Any], truth: float) -> bool:
@@ -209,6 +248,9 @@ def _mark(ok: bool) -> str:
     return "✓" if ok else "✗"
 
 
+_WORLD_MARK = {WITHIN: "✓", AS_REAL: "≈", OFF: "✗"}
+
+
 def results_markdown(c: Comparison, *, factor: float = 1.5, ratio_tolerance: float = 0.25, margin: float = 0.10) -> str:
     """The comparison as Markdown sections (no heading of the document's own)."""
     L: list[str] = []
@@ -240,6 +282,13 @@ def results_markdown(c: Comparison, *, factor: float = 1.5, ratio_tolerance: flo
             L.append(f"| {m} / physics, ours | " + " | ".join(
                 f"{c.ratios[(m, k)][0]:.2f} {_mark(abs(c.ratios[(m, k)][0] / c.ratios[(m, k)][1] - 1) <= ratio_tolerance)}"
                 for k in QUANTITIES) + " |")
+            if all((m, k) in c.world for k in QUANTITIES):
+                L.append(f"| {m} / physics, the default world | " + " | ".join(
+                    f"{c.world[(m, k)][0]:.2f} {_WORLD_MARK[c.world[(m, k)][1]]}" for k in QUANTITIES) + " |")
+        if c.world:
+            L += ["", f"The default world's rows (reports/sim/stats.md): ✓ within {ratio_tolerance:.0%} of the "
+                  f"paper's ratio; ≈ missing it as the real flights do (within {ratio_tolerance:.0%} of the real "
+                  "flights' ratio); ✗ neither."]
         L.append("")
     if c.best:
         L += ["## The best model of each SimErr column", "",
