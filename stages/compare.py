@@ -17,6 +17,7 @@ from nanosysid.report import paper, realism, rig, tables
 from nanosysid.report.stats import stats_markdown, trajectory_stats
 from nanosysid.rig.logs import LogSpec
 from nanosysid.report.world import nature_thrust_coefficient, world_markdown
+from nanosysid.sim.world import ROTOR_INERTIA
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.compare")
@@ -115,7 +116,10 @@ def _world_beside(cfg: DictConfig, bench, sync) -> dict:
     world, real = sim_bench.train + sim_bench.test, bench.train + bench.test
     result = realism.compare(realism.world_figures(world, sim_vehicle, w, o), realism.world_figures(real, rig_vehicle, w, o),
                              (float(sim_sync[0]["motor_lag"]), float(sync[0]["motor_lag"])))
-    return {**result, "noise_law": {"world": realism.noise_law(world), "real": realism.noise_law(real)}}
+    return {**result, "noise_law": {"world": realism.noise_law(world), "real": realism.noise_law(real)},
+            "yaw_reaction": {"world": realism.yaw_reaction(world, sim_vehicle, w, o),
+                             "real": realism.yaw_reaction(real, rig_vehicle, w, o)},
+            "rotor_inertia": ROTOR_INERTIA * float(cfg.sim.effects.get("rotor_inertia", 0.0))}
 
 
 if __name__ == "__main__":

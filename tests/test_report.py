@@ -264,6 +264,43 @@ def test_the_world_comparison_measures_how_far_each_flights_mean_residual_moves(
     assert not rows["F_y residual, spread of the flights' means [mN]"]["off"]
 
 
+def test_the_world_comparison_reads_the_rotors_reaction_in_the_yaw_residual():
+    # a hover whose rotors swing in yaw at 3 Hz, Omega_i = b + s_i A sin(w t), with a rotor inertia
+    # J_r: the body's yaw acceleration is (nominal -k_M sum s_i Omega_i² = -8 k_M b A sin(w t), plus
+    # the reaction -J_r sum s_i dOmega_i/dt = -4 J_r A w cos(w t)) / J_z, integrated by hand; the
+    # residual is the reaction alone, J_r comes back and the correlation is 1. A second flight adds
+    # a yaw torque of another frequency (2.2 Hz) and the same RMS: the correlation is 1/sqrt(2)
+    import yaml
+
+    from nanosysid import dynamics
+    from nanosysid.dataio import Flight
+    from nanosysid.report import realism
+    from nanosysid.vehicle import Vehicle
+
+    vehicle = Vehicle.from_mapping(yaml.safe_load(open("conf/vehicle/cf21bl.yaml")))
+    jr, b, amp, w, w2 = 3.0e-8, 1750.0, 40.0, 2 * np.pi * 3.0, 2 * np.pi * 2.2
+    t = np.arange(6000) * 0.01
+    spin = np.asarray(dynamics.SPIN)
+    u = b + amp * np.sin(w * t)[:, None] * spin
+    jz = vehicle.inertia[2]
+    wz = (8 * vehicle.k_m * b * amp * np.cos(w * t) / w - 4 * jr * amp * np.sin(w * t)) / jz
+    extra = {"ax_body": np.zeros(len(t)), "ay_body": np.zeros(len(t)),
+             "az_body": np.full(len(t), vehicle.k_f * 4 * b**2 / vehicle.mass)}
+    flights = []
+    for k, disturbance in enumerate((0.0, 4 * jr * amp * w / w2), start=1):
+        y = np.zeros((len(t), 13))
+        y[:, 9] = 1.0
+        y[:, 12] = wz - disturbance * np.cos(w2 * t) / jz  # a torque d sin(w2 t) integrated
+        flights.append(Flight(f"chirp_20250101_run{k}", t, u, y, extra))
+    pure = realism.yaw_reaction(flights[:1], vehicle)["chirp"]
+    assert pure["J_r [kg m²]"] == pytest.approx(jr, rel=0.01)
+    assert pure["correlation"] == pytest.approx(1.0, abs=1e-3)
+    assert pure["yaw-differential rotor acceleration [rad/s² std]"] == pytest.approx(4 * amp * w / np.sqrt(2), rel=0.05)
+    mixed = realism.yaw_reaction(flights[1:], vehicle)["chirp"]
+    assert mixed["J_r [kg m²]"] == pytest.approx(jr, rel=0.02)
+    assert mixed["correlation"] == pytest.approx(1 / np.sqrt(2), abs=0.03)
+
+
 def test_the_world_comparison_reads_a_residuals_band_between_welchs_bins():
     # power spread evenly over 0 .. 0.7 Hz (random phases): half of it lies below 0.35 Hz, which
     # falls between Welch's 0.098 Hz bins (0.293 and 0.391)

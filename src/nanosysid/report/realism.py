@@ -10,6 +10,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from nanosysid import dynamics
 from nanosysid.dataio import Flight
 from nanosysid.discover.fit import EDGE, measured_wrench, nominal_wrench
 from nanosysid.discover.stats import spread
@@ -17,7 +18,7 @@ from nanosysid.effects import CHANNELS
 from nanosysid.report.stats import flight_stats
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["TOLERANCE", "world_figures", "noise_law", "compare", "markdown"]
+__all__ = ["TOLERANCE", "world_figures", "noise_law", "yaw_reaction", "compare", "markdown"]
 
 TOLERANCE = 0.25
 
@@ -111,6 +112,29 @@ def noise_law(flights: Sequence[Flight]) -> dict[str, float]:
             for (name, _), c, g in zip(SENSORS, b0, b1)}
 
 
+def yaw_reaction(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, order: int = 3
+                 ) -> dict[str, dict[str, float]]:
+    """How much of the nominal model's yaw torque residual is the rotors' reaction to their own
+    acceleration, ``-J_r sum_i s_i dOmega_i/dt`` (``s_i`` the spin directions): per trajectory,
+    averaged over its runs, the least-squares ``J_r`` (kg m²) of each flight's yaw residual on
+    that sum, their correlation, and the sum's std (rad/s², the rotors' yaw-differential
+    acceleration). The rotor speeds are differentiated by the same Savitzky-Golay filter as the
+    body rates, so that the filter's own attenuation cancels in ``J_r``."""
+    from scipy.signal import savgol_filter
+
+    spin = np.asarray(dynamics.SPIN)
+    by: dict[str, list[dict[str, float]]] = {}
+    for f in flights:
+        y = _residual(f, vehicle, window, order)[:, 5]
+        dt = float(np.median(np.diff(f.t)))
+        x = -(savgol_filter(f.u, window, order, deriv=1, delta=dt, axis=0) @ spin)[EDGE:-EDGE]
+        x, y = x - x.mean(), y - y.mean()
+        by.setdefault(f.trajectory, []).append({
+            "J_r [kg m²]": float(x @ y / (x @ x)), "correlation": float(np.corrcoef(x, y)[0, 1]),
+            "yaw-differential rotor acceleration [rad/s² std]": float(x.std())})
+    return {t: {k: float(np.mean([r[k] for r in runs])) for k in runs[0]} for t, runs in by.items()}
+
+
 def compare(world: Mapping[str, Mapping[str, float]], real: Mapping[str, Mapping[str, float]],
             lags: tuple[float, float], tolerance: float = TOLERANCE) -> dict[str, Any]:
     """Every figure of the world's beside the real flights', its ratio, and the ones off by more
@@ -155,6 +179,12 @@ WHY = {
                 "between trajectories more than that (its Square's thrust residual is the largest, its Random's "
                 "yaw residual the smallest), as effects the world lacks would make it; the residual also carries "
                 "the rotor speeds' noise through the nominal wrench, larger on the rig's Square than on the world's",
+    "tau_z": "the rig's yaw residual is the rotors' reaction to their own acceleration (the section 'The yaw "
+             "residual' below: on the rig it follows the rotors' yaw-differential acceleration with the world's "
+             "rotor inertia, which its rotors swing faster and harder than the world's); the world's is mostly its "
+             "rotors' drag-torque fluctuation (`unsteady_thrust`, 3 Hz) and its yaw turbulence, which the controller "
+             "answers through the rotor speeds, a band below the rig's. The rig's flights do not tell what drives "
+             "its rotors' yaw-differential swing",
     "median frequency": "the world's time-varying effects have corners of 1 Hz (the turbulence's force), 0.4 Hz "
                         "(its roll and pitch torque, the rig's band), 3 Hz (its yaw torque) and 3 Hz (the thrust "
                         "fluctuation, which carries the world's thrust residual to about 1 Hz); the rig's force "
@@ -170,11 +200,17 @@ WHY = {
               "takeoff height with its four rotors level at full throttle (the attitude loop left without "
               "authority), 1.2-2.7 rad/s of roll and 0.5-1.1 of yaw against the world's 0.2-0.5 and 0.2-0.6; in "
               "its last five, after its setpoint stops dead at the circle's end, 0.6-0.8 and 0.4-0.5 against "
-              "0.3 and 0.05",
+              "0.3 and 0.05. In the climb's braking the rig's controller cuts its rotors to idle and they spin down "
+              "slowly (GRAFE's in-flight fit of the rotor's response 50 ms, drone-models' 57-65 ms; the world's "
+              "`sim.flight.motor_tau` 20 ms): flown with 55 ms rotors, the world's Melon starts as the rig's, but "
+              "its attitude loop then rings faster than the rig's on every trajectory (the gyro's white noise "
+              "above the rig's) and the Square no longer flies with a slow lag above 0.3 of the wrench",
 }
 
 
 def _why(figure: str) -> str:
+    if figure.startswith(("tau_z residual [", "tau_z residual median")):
+        return WHY["tau_z"]
     for key in ("spread", "median frequency", "rotor speed noise", "accelerometer noise", "noise", "residual",
                 "motor lag"):
         if key in figure:
@@ -205,6 +241,18 @@ def markdown(result: Mapping[str, Any]) -> str:
               "|dΩ/dt| (least squares over the flights; a larger `ref` grows more slowly):", "",
               "| sensor | world's ref [rad/s²] | real ref [rad/s²] |", "|---|---|---|"]
         L += [f"| {k} | {law['world'][k]:.0f} | {law['real'][k]:.0f} |" for k in law["real"]]
+        L.append("")
+    if "yaw_reaction" in result:
+        yr = result["yaw_reaction"]
+        keys = list(next(iter(yr["real"].values())))
+        L += ["## The yaw residual", "",
+              "The nominal model's yaw torque residual regressed, flight by flight, on the rotors' reaction to their own "
+              "acceleration, `-J_r sum_i s_i dΩ_i/dt` (the world's rotor inertia is "
+              f"{result.get('rotor_inertia', float('nan')):.3g} kg m²); each figure averaged over a trajectory's runs:", "",
+              "| trajectory | " + " | ".join(f"{k}, world | {k}, real" for k in keys) + " |",
+              "|---|" + "---|---|" * len(keys)]
+        for t in sorted(set(yr["world"]) & set(yr["real"])):
+            L.append(f"| {t} | " + " | ".join(f"{yr['world'][t][k]:.3g} | {yr['real'][t][k]:.3g}" for k in keys) + " |")
         L.append("")
     L += ["## Every figure", "", "| trajectory | figure | world | real | ratio |", "|---|---|---|---|---|"]
     for r in result["rows"]:
