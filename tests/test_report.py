@@ -299,6 +299,17 @@ def test_the_world_comparison_reads_the_rotors_reaction_in_the_yaw_residual():
     mixed = realism.yaw_reaction(flights[1:], vehicle)["chirp"]
     assert mixed["J_r [kg m²]"] == pytest.approx(jr, rel=0.02)
     assert mixed["correlation"] == pytest.approx(1 / np.sqrt(2), abs=0.03)
+    # two runs of rotors of 2e-8 and 4e-8 kg m²: the mean 3e-8, and the 95 % half-width Student's
+    # t with one degree of freedom (12.706) times the standard error (std 1.414e-8 over sqrt 2)
+    runs = []
+    for k, inertia in enumerate((2.0e-8, 4.0e-8), start=1):
+        y = np.zeros((len(t), 13))
+        y[:, 9] = 1.0
+        y[:, 12] = (8 * vehicle.k_m * b * amp * np.cos(w * t) / w - 4 * inertia * amp * np.sin(w * t)) / jz
+        runs.append(Flight(f"square_20250101_run{k}", t, u, y, extra))
+    two = realism.yaw_reaction(runs, vehicle)["square"]
+    assert two["J_r [kg m²]"] == pytest.approx(3.0e-8, rel=0.01)
+    assert two["J_r, 95 % half-width over the runs [kg m²]"] == pytest.approx(12.706 * 1.0e-8, rel=0.01)
 
 
 def test_the_world_comparison_reads_a_residuals_band_between_welchs_bins():

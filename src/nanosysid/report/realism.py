@@ -13,7 +13,7 @@ import numpy as np
 from nanosysid import dynamics
 from nanosysid.dataio import Flight
 from nanosysid.discover.fit import EDGE, measured_wrench, nominal_wrench
-from nanosysid.discover.stats import spread
+from nanosysid.discover.stats import half_width, spread
 from nanosysid.effects import CHANNELS
 from nanosysid.report.stats import flight_stats
 from nanosysid.vehicle import Vehicle
@@ -117,8 +117,8 @@ def yaw_reaction(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, 
     """How much of the nominal model's yaw torque residual is the rotors' reaction to their own
     acceleration, ``-J_r sum_i s_i dOmega_i/dt`` (``s_i`` the spin directions): per trajectory,
     averaged over its runs, the least-squares ``J_r`` (kg m²) of each flight's yaw residual on
-    that sum, their correlation, and the sum's std (rad/s², the rotors' yaw-differential
-    acceleration). The rotor speeds are differentiated by the same Savitzky-Golay filter as the
+    that sum (with the half-width of its 95 % interval over the runs, Student's t), their
+    correlation, and the sum's std (rad/s², the rotors' yaw-differential acceleration). The rotor speeds are differentiated by the same Savitzky-Golay filter as the
     body rates, so that the filter's own attenuation cancels in ``J_r``."""
     from scipy.signal import savgol_filter
 
@@ -132,7 +132,13 @@ def yaw_reaction(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, 
         by.setdefault(f.trajectory, []).append({
             "J_r [kg m²]": float(x @ y / (x @ x)), "correlation": float(np.corrcoef(x, y)[0, 1]),
             "yaw-differential rotor acceleration [rad/s² std]": float(x.std())})
-    return {t: {k: float(np.mean([r[k] for r in runs])) for k in runs[0]} for t, runs in by.items()}
+    out = {}
+    for t, runs in by.items():
+        mean = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}
+        jr = np.array([r["J_r [kg m²]"] for r in runs])
+        hw = half_width(jr.std(ddof=1) / np.sqrt(len(jr)), len(jr)) if len(jr) > 1 else float("nan")
+        out[t] = {"J_r [kg m²]": mean.pop("J_r [kg m²]"), "J_r, 95 % half-width over the runs [kg m²]": hw, **mean}
+    return out
 
 
 def compare(world: Mapping[str, Mapping[str, float]], real: Mapping[str, Mapping[str, float]],
@@ -180,8 +186,9 @@ WHY = {
                 "yaw residual the smallest), as effects the world lacks would make it; the residual also carries "
                 "the rotor speeds' noise through the nominal wrench, larger on the rig's Square than on the world's",
     "tau_z": "the rig's yaw residual is the rotors' reaction to their own acceleration (the section 'The yaw "
-             "residual' below: on the rig it follows the rotors' yaw-differential acceleration with the world's "
-             "rotor inertia, which its rotors swing faster and harder than the world's); the world's is mostly its "
+             "residual' below: on the rig it follows the rotors' yaw-differential acceleration with a rotor "
+             "inertia below the world's (the world's outside three of its four trajectories' 95 % intervals), and "
+             "its rotors swing in yaw faster and harder than the world's); the world's is mostly its "
              "rotors' drag-torque fluctuation (`unsteady_thrust`, 3 Hz) and its yaw turbulence, which the controller "
              "answers through the rotor speeds, a band below the rig's. The rig's flights do not tell what drives "
              "its rotors' yaw-differential swing",
