@@ -17,7 +17,7 @@ from nanosysid.report import paper, realism, rig, tables
 from nanosysid.report.stats import stats_markdown, trajectory_stats
 from nanosysid.rig.logs import LogSpec
 from nanosysid.report.world import nature_thrust_coefficient, world_markdown
-from nanosysid.sim.world import ROTOR_INERTIA
+from nanosysid.sim.world import ROTOR_DRAG, ROTOR_INERTIA
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.compare")
@@ -119,6 +119,9 @@ def _world_beside(cfg: DictConfig, bench, sync) -> dict:
     return {**result, "noise_law": {"world": realism.noise_law(world), "real": realism.noise_law(real)},
             "yaw_reaction": {"world": realism.yaw_reaction(world, sim_vehicle, w, o),
                              "real": realism.yaw_reaction(real, rig_vehicle, w, o)},
+            "climb_drag": {"world": realism.climb_drag(world, sim_vehicle, w, o),
+                           "real": realism.climb_drag(real, rig_vehicle, w, o)},
+            "rotor_drag_z": ROTOR_DRAG[2] * float(cfg.sim.effects.get("rotor_drag", 0.0)),
             "rotor_inertia": ROTOR_INERTIA * float(cfg.sim.effects.get("rotor_inertia", 0.0))}
 
 

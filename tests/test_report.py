@@ -312,6 +312,39 @@ def test_the_world_comparison_reads_the_rotors_reaction_in_the_yaw_residual():
     assert two["J_r, 95 % half-width over the runs [kg m²]"] == pytest.approx(12.706 * 1.0e-8, rel=0.01)
 
 
+def test_the_world_comparison_reads_the_climb_drag_in_the_thrust_residual():
+    # a level hover that bobs up and down at 0.4 Hz, v_z = V sin(w t), its rotors steady at b: the
+    # accelerometer reads the nominal thrust less a drag K (4 b) v_z, over the mass; the thrust
+    # residual is that drag alone, K comes back and the correlation is 1. Two runs of 2e-6 and
+    # 4e-6 kg/rad: the mean 3e-6 and the 95 % half-width Student's t with one degree of freedom
+    # (12.706) times the standard error (std 1.414e-6 over sqrt 2)
+    import yaml
+
+    from nanosysid.dataio import Flight
+    from nanosysid.report import realism
+    from nanosysid.vehicle import Vehicle
+
+    vehicle = Vehicle.from_mapping(yaml.safe_load(open("conf/vehicle/cf21bl.yaml")))
+    b, speed, w = 1750.0, 0.5, 2 * np.pi * 0.4
+    t = np.arange(3000) * 0.01
+    u = np.full((len(t), 4), b)
+    flights = []
+    for k, drag in enumerate((2.0e-6, 4.0e-6), start=1):
+        y = np.zeros((len(t), 13))
+        y[:, 9] = 1.0
+        y[:, 5] = speed * np.sin(w * t)
+        extra = {"ax_body": np.zeros(len(t)), "ay_body": np.zeros(len(t)),
+                 "az_body": (vehicle.k_f * 4 * b**2 - drag * 4 * b * y[:, 5]) / vehicle.mass}
+        flights.append(Flight(f"random_20250101_run{k}", t, u, y, extra))
+    one = realism.climb_drag(flights[:1], vehicle)["random"]
+    assert one["K_z [kg/rad]"] == pytest.approx(2.0e-6, rel=0.01)
+    assert one["correlation"] == pytest.approx(1.0, abs=1e-3)
+    assert one["body-z velocity [m/s std]"] == pytest.approx(speed / np.sqrt(2), rel=0.01)
+    two = realism.climb_drag(flights, vehicle)["random"]
+    assert two["K_z [kg/rad]"] == pytest.approx(3.0e-6, rel=0.01)
+    assert two["K_z, 95 % half-width over the runs [kg/rad]"] == pytest.approx(12.706 * 1.0e-6, rel=0.01)
+
+
 def test_the_world_comparison_reads_a_residuals_band_between_welchs_bins():
     # power spread evenly over 0 .. 0.7 Hz (random phases): half of it lies below 0.35 Hz, which
     # falls between Welch's 0.098 Hz bins (0.293 and 0.391)
