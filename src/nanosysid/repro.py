@@ -50,15 +50,28 @@ import signal
 import sys
 
 
+_interrupted = False  # an interruption before any stage started, honoured before the first one starts
+
+
 def _quit_starting(signum, frame):
     # an interruption before any stage has started: nothing to stop, nothing written
+    global _interrupted
+    _interrupted = True
     print("\ninterrupted before any stage started", file=sys.stderr)
     raise SystemExit(130)
+
+
+def _unraisable(u) -> None:
+    # the SystemExit above, raised while a callback that cannot raise ran (an import's module-lock
+    # weakref): Python would print it with its traceback and go on; main stops before any stage
+    if not (isinstance(u.exc_value, SystemExit) and _interrupted):
+        sys.__unraisablehook__(u)
 
 
 if __name__ == "__main__":  # from the start, not once the imports below are done
     signal.signal(signal.SIGINT, _quit_starting)
     signal.signal(signal.SIGTERM, _quit_starting)
+    sys.unraisablehook = _unraisable
 
 import argparse  # noqa: E402
 import heapq  # noqa: E402
@@ -567,6 +580,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"error: {e}", file=sys.stderr)
         return 2
     upstream = _with_rig(upstream, skip=a.skip_rig)
+    if _interrupted:  # its SystemExit went where it could not stop the runner (see _unraisable)
+        return 130
     LOG_DIR.mkdir(parents=True, exist_ok=True)
     # this machine's last run where there is one, else the times the repository records
     order = best_order(upstream, _last_times(a.out) or _last_times(RECORDED.with_name(a.out.name.replace(".last", ""))),

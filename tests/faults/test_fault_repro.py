@@ -7,6 +7,8 @@ from __future__ import annotations
 import json
 import re
 import signal
+import subprocess
+import sys
 import time
 
 import pytest
@@ -25,6 +27,24 @@ def env():
 def lock_whole(root) -> bool:
     lock = root / "dvc.lock"
     return not lock.exists() or isinstance(yaml.safe_load(lock.read_text())["stages"], dict)
+
+
+def test_an_interruption_that_lands_in_a_callback_at_start_up_still_stops_the_runner(tmp_path, env):
+    # Ctrl-C while an import's module-lock weakref callback runs: Python swallows the handler's
+    # SystemExit there (printing it with a traceback) and goes on; made to happen on purpose here,
+    # the runner still stops before any stage, without a traceback
+    root = tmp_path / "toy"
+    toy_repo(root, env)
+    code = ("import sys, weakref\n"
+            "import nanosysid.repro as r\n"
+            "sys.unraisablehook = r._unraisable\n"
+            "class A: pass\n"
+            "a = A(); ref = weakref.ref(a, lambda _: r._quit_starting(signal_number, None)); del a\n"
+            "sys.exit(r.main(['--jobs', '2', '--out', 'rec.json']))\n").replace("signal_number", str(int(signal.SIGINT)))
+    run = subprocess.run([sys.executable, "-c", code], cwd=root, env=env, capture_output=True, text=True)
+    assert run.returncode == 130 and "interrupted before any stage started" in run.stderr, run.stderr
+    assert "Traceback" not in run.stderr, run.stderr
+    assert not (root / "rec.json").exists() and not list(root.glob("*.txt")) and lock_whole(root)
 
 
 @pytest.mark.parametrize("sig, after", [(signal.SIGINT, 1.5), (signal.SIGINT, 4.0), (signal.SIGTERM, 3.0)],
