@@ -312,30 +312,42 @@ def test_the_world_comparison_reads_the_rotors_reaction_in_the_yaw_residual():
     assert two["J_r, 95 % half-width over the runs [kg m²]"] == pytest.approx(12.706 * 1.0e-8, rel=0.01)
 
 
-def test_the_world_comparison_reads_the_climb_drag_in_the_thrust_residual():
-    # a level hover that bobs up and down at 0.4 Hz, v_z = V sin(w t), its rotors steady at b: the
-    # accelerometer reads the nominal thrust less a drag K (4 b) v_z, over the mass; the thrust
-    # residual is that drag alone, K comes back and the correlation is 1. Two runs of 2e-6 and
-    # 4e-6 kg/rad: the mean 3e-6 and the 95 % half-width Student's t with one degree of freedom
-    # (12.706) times the standard error (std 1.414e-6 over sqrt 2)
+def _bobbing_hovers(drags, name, slow=None, noise=0.0, rng=None, samples=3000):
+    """Hovers tilted 30 degrees in roll that bob along their body z axis at 0.4 Hz, ``v_z = V
+    sin(w t)``, and drift along their body y axis (which the drag along z must not read), rotors
+    steady at b: the accelerometer reads the nominal thrust less a drag ``K (4 b) v_z`` (one run
+    per K of ``drags``), plus ``slow`` (N, a function of time and the run's generator) and white
+    noise, over the mass. Returns the vehicle and the flights."""
     import yaml
 
     from nanosysid.dataio import Flight
-    from nanosysid.report import realism
     from nanosysid.vehicle import Vehicle
 
     vehicle = Vehicle.from_mapping(yaml.safe_load(open("conf/vehicle/cf21bl.yaml")))
-    b, speed, w = 1750.0, 0.5, 2 * np.pi * 0.4
-    t = np.arange(3000) * 0.01
+    b, speed, w, half = 1750.0, 0.5, 2 * np.pi * 0.4, np.radians(15.0)
+    t = np.arange(samples) * 0.01
     u = np.full((len(t), 4), b)
+    y = np.zeros((len(t), 13))
+    y[:, 6], y[:, 9] = np.sin(half), np.cos(half)  # qx, qw: 30 degrees of roll
+    z_b, y_b = np.array([0.0, -0.5, np.sqrt(0.75)]), np.array([0.0, np.sqrt(0.75), 0.5])  # in the world
+    v_z = speed * np.sin(w * t)
+    y[:, 3:6] = v_z[:, None] * z_b + 0.4 * np.cos(w * t)[:, None] * y_b
     flights = []
-    for k, drag in enumerate((2.0e-6, 4.0e-6), start=1):
-        y = np.zeros((len(t), 13))
-        y[:, 9] = 1.0
-        y[:, 5] = speed * np.sin(w * t)
-        extra = {"ax_body": np.zeros(len(t)), "ay_body": np.zeros(len(t)),
-                 "az_body": (vehicle.k_f * 4 * b**2 - drag * 4 * b * y[:, 5]) / vehicle.mass}
-        flights.append(Flight(f"random_20250101_run{k}", t, u, y, extra))
+    for k, drag in enumerate(drags, start=1):
+        force = vehicle.k_f * 4 * b**2 - drag * 4 * b * v_z + (0.0 if slow is None else slow(t, rng))
+        az = force / vehicle.mass + (rng.normal(0, noise, len(t)) if noise else 0.0)
+        flights.append(Flight(f"{name}_20250101_run{k}", t, u, y,
+                              {"ax_body": np.zeros(len(t)), "ay_body": np.zeros(len(t)), "az_body": az}))
+    return vehicle, flights, speed
+
+
+def test_the_world_comparison_reads_the_climb_drag_in_the_thrust_residual():
+    # the drag alone is the thrust residual: K comes back and the correlation is 1. Two runs of
+    # 2e-6 and 4e-6 kg/rad: the mean 3e-6 and the 95 % half-width Student's t with one degree of
+    # freedom (12.706) times the standard error (std 1.414e-6 over sqrt 2)
+    from nanosysid.report import realism
+
+    vehicle, flights, speed = _bobbing_hovers((2.0e-6, 4.0e-6), "random")
     one = realism.climb_drag(flights[:1], vehicle)["random"]
     assert one["K_z [kg/rad]"] == pytest.approx(2.0e-6, rel=0.01)
     assert one["correlation"] == pytest.approx(1.0, abs=1e-3)
@@ -350,30 +362,17 @@ def test_the_climb_drags_interval_over_the_runs_covers_the_truth_about_95_percen
     # accelerometer noise (white, 0.2 m/s²) and a slow thrust disturbance of random phase; the 95 %
     # interval over a session's runs covers the true K_z in 95 % of the sessions (binomial std of
     # the share over 300: 1.3 %)
-    import yaml
-
-    from nanosysid.dataio import Flight
     from nanosysid.report import realism
-    from nanosysid.vehicle import Vehicle
 
-    vehicle = Vehicle.from_mapping(yaml.safe_load(open("conf/vehicle/cf21bl.yaml")))
-    b, speed, w, drag = 1750.0, 0.5, 2 * np.pi * 0.4, 2.8e-6
-    t = np.arange(2000) * 0.01
-    u = np.full((len(t), 4), b)
-    y = np.zeros((len(t), 13))
-    y[:, 9] = 1.0
-    y[:, 5] = speed * np.sin(w * t)
+    def slow(t, rng):
+        return 2e-3 * np.sin(2 * np.pi * 0.3 * t + rng.uniform(0, 2 * np.pi))
+
     rng = np.random.default_rng(7)
     covered = 0
     for _ in range(300):
-        flights = []
-        for k in range(1, 5):
-            slow = 2e-3 * np.sin(2 * np.pi * 0.3 * t + rng.uniform(0, 2 * np.pi))
-            az = (vehicle.k_f * 4 * b**2 - drag * 4 * b * y[:, 5] + slow) / vehicle.mass + rng.normal(0, 0.2, len(t))
-            flights.append(Flight(f"chirp_20250101_run{k}", t, u, y,
-                                  {"ax_body": np.zeros(len(t)), "ay_body": np.zeros(len(t)), "az_body": az}))
+        vehicle, flights, _ = _bobbing_hovers((2.8e-6,) * 4, "chirp", slow, 0.2, rng, samples=2000)
         est = realism.climb_drag(flights, vehicle)["chirp"]
-        covered += abs(est["K_z [kg/rad]"] - drag) <= est["K_z, 95 % half-width over the runs [kg/rad]"]
+        covered += abs(est["K_z [kg/rad]"] - 2.8e-6) <= est["K_z, 95 % half-width over the runs [kg/rad]"]
     assert 0.92 <= covered / 300 <= 0.98
 
 
