@@ -16,7 +16,7 @@ import pytest
 import yaml
 
 from nanosysid.depgraph import (CODE_STAGES, DIGESTS, ONE_MODEL, PIPELINES, SELF, digest, digest_path, imported_files,
-                                stages, written_deps)
+                                package_folder, stages, written_deps)
 
 ROOT = Path(__file__).resolve().parents[1]
 SRC = ROOT / "src"
@@ -113,9 +113,14 @@ def test_a_stage_of_one_model_depends_on_that_models_code_and_no_other_networks(
 def test_the_check_sees_a_removed_dependency():
     module, _ = stages()["report"]
     _, _, deps = code_stage("dvc.yaml")
+    # the code stage watches the package folders (two entries, a column each in `dvc exp show`)
+    assert sorted(deps) == ["src/nanosysid", "stages"]
     assert not uncovered(imported_files(module), deps)
+    without_library = uncovered(imported_files(module), ["stages"])
     for dep in ("src/nanosysid/report/tables.py", "src/nanosysid/metrics.py"):  # imported directly, and through another
-        assert dep in uncovered(imported_files(module), [d for d in deps if d != dep])
+        assert dep in without_library
+    without_scripts = uncovered(imported_files(module), ["src/nanosysid"])
+    assert "stages/report.py" in without_scripts and all(f.startswith("stages/") for f in without_scripts)
 
 
 def test_lazy_imports_are_followed():
@@ -284,15 +289,16 @@ def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tm
 
     repo, sh = copied(tmp_path, venv_env)
     importers = {name for name, (_, script, _) in every_stage().items() if ROOT / module in imported_files(script)}
-    pipelines = {name.partition(":")[0] if ":" in name else "dvc.yaml" for name in importers}
-    # the committed code's digests: nothing is out of date for its code
+    code_stages = [CODE_STAGES[p] if p == "dvc.yaml" else f"{p}:{CODE_STAGES[p]}" for p in PIPELINES]
+    # the code stages run on this tree's code (a user's tree may hold models of its own): nothing
+    # is out of date for its code
     run_code_stages()
+    sh("dvc", "commit", "-f", "-q", *code_stages)
     assert not stale(json.loads(sh("dvc", "status", "--json")), lambda d: True)
     with open(repo / module, "a") as f:
         f.write("\n# changed\n")
-    # `dvc status` names the edited file under the code stages that watch it ...
-    assert stale(json.loads(sh("dvc", "status", "--json")), lambda d: d == module) == {
-        CODE_STAGES[p] if p == "dvc.yaml" else f"{p}:{CODE_STAGES[p]}" for p in pipelines}
+    # `dvc status` names the edited file's package folder under the code stages, which watch it ...
+    assert stale(json.loads(sh("dvc", "status", "--json")), lambda d: d == package_folder(module)) == set(code_stages)
     # ... whose run changes the digests of exactly the scripts that import it
     run_code_stages()
     assert stale(json.loads(sh("dvc", "status", "--json")), lambda d: d.startswith("digests/")) == importers
@@ -303,10 +309,30 @@ def test_changing_a_module_puts_exactly_the_stages_that_import_it_out_of_date(tm
         assert not importers & {"train", "identify", "quality", "split", "simulate", "extract"}
 
 
-def test_the_committed_lock_records_the_committed_code():
+def folder_hash(folder: str, files: list[str], tmp: Path) -> str:
+    """DVC's hash of a folder holding only ``files`` (paths under it, as git names them)."""
+    import os
+    import shutil
+
+    from dvc_data.hashfile.build import build
+    from dvc_data.hashfile.db import HashFileDB
+    from dvc_objects.fs.local import LocalFileSystem
+    from dvc_objects.fs.memory import MemoryFileSystem
+
+    dest = tmp / folder
+    for f in files:
+        (tmp / f).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(ROOT / f, tmp / f)
+    _, _, obj = build(HashFileDB(MemoryFileSystem(), "/odb"), os.fspath(dest), LocalFileSystem(), "md5")
+    return obj.hash_info.value
+
+
+def test_the_committed_lock_records_the_committed_code(tmp_path):
     # a stage whose lock entry records another version of a file it reads is out of date in a
     # fresh clone: `dvc status` is not clean and the first `make repro` reruns it and rewrites
-    # dvc.lock. Every file dependency git tracks is checked against its md5 (DVC's file hash).
+    # dvc.lock. Every file dependency git tracks is checked against its md5 (DVC's file hash),
+    # and the code stages' package folders against DVC's hash of the files git tracks in them
+    # (an untracked file there would make the lock one no clone reproduces).
     import hashlib
     import subprocess
 
@@ -320,6 +346,13 @@ def test_the_committed_lock_records_the_committed_code():
     for name, stage in entries:
         for dep in stage.get("deps", []):
             path = dep["path"]
+            if path in ("src/nanosysid", "stages"):
+                if path not in md5:
+                    files = sorted(f for f in tracked if f.startswith(path + "/"))
+                    md5[path] = folder_hash(path, files, tmp_path)
+                if dep["md5"] != md5[path]:
+                    stale.append(f"{name}: {path}")
+                continue
             if path not in tracked or "md5" not in dep:
                 continue
             if path not in md5:
@@ -330,19 +363,22 @@ def test_the_committed_lock_records_the_committed_code():
     assert not stale, f"a dvc.lock records other versions of: {', '.join(stale[:10])} (+{max(len(stale) - 10, 0)})"
 
 
-def test_the_code_stage_refuses_to_run_while_its_pipeline_misses_an_import(tmp_path, venv_env):
-    # a script that imports a file its pipeline's code stage does not watch: its digest would
-    # never change with that file, so the stage refuses, names the fix and writes nothing
+def test_the_code_stage_refuses_to_run_while_its_pipeline_misses_a_script_or_a_package_folder(tmp_path, venv_env):
+    # a stage script the code stage writes no digest of (a stage added by hand), or a package
+    # folder it does not watch (an edit there would never rerun it, so never change a digest):
+    # the stage refuses, names the fix and writes nothing
     import subprocess
     import sys
 
     repo, _ = copied(tmp_path, venv_env)
-    _, scripts, code = code_stage("dvc.yaml", repo)
-    unwatched = next(f"src/nanosysid/{m}.py" for m in ("viz/campaign", "campaign", "report/campaign")
-                     if f"src/nanosysid/{m}.py" not in code)
-    with open(repo / "stages" / "split.py", "a") as f:
-        f.write(f"\nimport {unwatched[4:-3].replace('/', '.')}  # noqa\n")
-    r = subprocess.run([sys.executable, "-m", SELF, "digest", DIGESTS["dvc.yaml"], *scripts], cwd=repo, env=venv_env,
-                       capture_output=True, text=True)
-    assert r.returncode == 2 and "make deps" in r.stderr and "Traceback" not in r.stderr, r.stderr
-    assert not (repo / DIGESTS["dvc.yaml"]).exists()
+    _, scripts, _ = code_stage("dvc.yaml", repo)
+    text = (repo / "dvc.yaml").read_text()
+    head, sep, tail = text.partition("    deps:\n      - src/nanosysid\n      - stages\n")
+    assert sep, "the code stage's deps are not the two package folders"
+    for broken in (head + sep.replace("      - stages\n", "") + tail, text.replace(" stages.split ", " ", 1)):
+        assert broken != text
+        (repo / "dvc.yaml").write_text(broken)
+        r = subprocess.run([sys.executable, "-m", SELF, "digest", DIGESTS["dvc.yaml"], *scripts], cwd=repo,
+                           env=venv_env, capture_output=True, text=True)
+        assert r.returncode == 2 and "make deps" in r.stderr and "Traceback" not in r.stderr, r.stderr
+        assert not (repo / DIGESTS["dvc.yaml"]).exists()
