@@ -41,8 +41,8 @@ import yaml
 from nanosysid.guard import PIPELINE_FILES
 
 __all__ = ["module_file", "direct_imports", "by_name", "imported_files", "stages", "needed_deps", "written_deps",
-           "digest", "write_digests", "digest_path", "code_deps", "package_folder", "ONE_MODEL", "PIPELINES", "CODE_STAGES",
-           "DIGESTS", "SELF"]
+           "digest", "write_digests", "digest_path", "code_deps", "package_folder", "ONE_MODEL", "PIPELINES",
+           "CODE_STAGES", "DIGESTS", "SELF"]
 
 OWN = ("nanosysid", "stages")
 ROOT = Path(__file__).resolve().parents[2]  # the project: src/nanosysid/depgraph.py
