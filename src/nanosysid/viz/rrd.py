@@ -179,7 +179,7 @@ def canonical(data: bytes, recording_id: str) -> bytes:
         raise DataError("rrd.canonical: data is not an RRD stream (no RRF2 header)")
     try:
         return _canonical(data, recording_id)
-    except (struct.error, lz4.block.LZ4BlockError, IndexError, ValueError) as e:
+    except (struct.error, lz4.block.LZ4BlockError, IndexError, ValueError, pa.ArrowException) as e:
         raise DataError(f"rrd.canonical: data is not a whole RRD stream, cut short or damaged ({type(e).__name__}: "
                         f"{str(e).splitlines()[0] if str(e) else ''})") from None
 
@@ -189,6 +189,8 @@ def _canonical(data: bytes, recording_id: str) -> bytes:
     out, i = [data[:12]], 12
     while i < len(data):
         kind, n = struct.unpack_from("<QQ", data, i)
+        if i + 16 + n > len(data):
+            raise ValueError(f"a message of {n} bytes at byte {i} runs past the end ({len(data)} bytes)")
         body, i = data[i + 16:i + 16 + n], i + 16 + n
         if kind == _END:  # the end, and the footer that indexes the old ids (with_footer writes it anew)
             break
@@ -200,6 +202,8 @@ def _canonical(data: bytes, recording_id: str) -> bytes:
         else:
             body = _RANDOM_STORE.sub(ids.store, body)
         out.append(struct.pack("<QQ", kind, len(body)) + body)
+    else:  # rerun ends every stream it saves with an end message: one without it was cut short
+        raise ValueError(f"no end message in {len(data)} bytes")
     return b"".join(out)
 
 
