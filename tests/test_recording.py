@@ -15,7 +15,7 @@ from nanosysid import so3
 from nanosysid.bags.extract import extract_bag
 from nanosysid.preprocess.filtering import FilterConfig, fill_gaps, filter_flight, lowpass
 from nanosysid.bags.messages import typestore
-from nanosysid.bags.recorder import RecorderConfig, record_flight
+from nanosysid.bags.recorder import RecorderConfig, firmware_lowpass, record_flight
 from nanosysid.sim import FlightSpec
 from nanosysid.sim.simulator import flights_from_record, simulate_raw
 from nanosysid.preprocess.lag import motor_lag_estimate, motor_lag_evidence
@@ -52,6 +52,32 @@ def test_extract_converts_to_si_units(bag, raw):
     assert abs(np.nanmedian(motors) - Vehicle().hover_speed) < 100  # rad/s around hover
     assert abs(tables["imu"]["az"].median() - 9.81) < 1.0  # specific force in m/s^2
     assert np.all(np.diff(tables["odom"]["t_src"]) > 0)  # sorted by the source clock
+
+
+def test_the_imu_reads_through_a_filter_that_delays_a_slow_signal_as_the_analogue_one():
+    # a second-order Butterworth low-pass at fc delays a signal far below fc by sqrt(2) / (2 pi fc)
+    # (the analogue filter's group delay at 0 Hz) and passes it whole
+    t = np.arange(0.0, 4.0, 0.002)
+    fc, f = 30.0, 0.5
+    y, delay = firmware_lowpass(t, np.sin(2 * np.pi * f * t)[:, None], fc)
+    analogue = np.sqrt(2) / (2 * np.pi * fc)
+    assert abs(delay - analogue) < 0.02 * analogue
+    late = t > 1.0  # past the start from rest
+    assert np.abs(y[late, 0] - np.sin(2 * np.pi * f * (t[late] - analogue))).max() < 0.005
+    same, none = firmware_lowpass(t, t[:, None], 0.0)  # 0 Hz: no filter
+    assert none == 0.0 and np.array_equal(same, t[:, None])
+
+
+def test_the_oracle_reads_the_rotor_speeds_as_late_as_the_filtered_accelerometer_leaves_them(raw, tmp_path):
+    # the sync stage aligns the motor stream with the accelerometer; with the default recorder the
+    # motor readings lead it by the accelerometer filter's delay, which the oracle's rotor_delay
+    # (conf/data/sim.yaml) must put back
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    rotor_delay = yaml.safe_load((root / "params.yaml").read_text())["data"]["rotor_delay"]
+    injected = record(raw, tmp_path / "melon_20250601_run1")["motor_lag"]
+    assert abs(-injected - rotor_delay) < 0.5e-3
 
 
 def test_sync_recovers_non_default_lags_and_matches_the_truth(raw, tmp_path):

@@ -9,7 +9,8 @@ tick lattice.
 Streams (topics from the topic map):
 - mocap pose at 120 Hz, received ``latency`` after capture, with noise and marker dropouts;
 - onboard estimate (Odometry) and IMU at 100 Hz over Wi-Fi: received with latency and jitter,
-  a few percent of packets lost;
+  a few percent of packets lost; the gyro and accelerometer read through the firmware's
+  second-order low-pass filters (``gyro_lowpass``, ``accel_lowpass``);
 - motor telemetry at 100 Hz, stamped like the IMU but reading the rotor speeds ``motor_delay``
   earlier (plus the ``telemetry_delay`` effect), in units of 100 eRPM, some readings missed;
 - status at 10 Hz and the host's position and yaw setpoints at 50 Hz (zero outside the flight).
@@ -32,6 +33,7 @@ import numpy as np
 import pandas as pd
 import yaml
 from rosbags.rosbag2 import CompressionFormat, CompressionMode, StoragePlugin, Writer
+from scipy.signal import butter, group_delay, lfilter, lfilter_zi
 from scipy.spatial.transform import Rotation, Slerp
 
 from nanosysid.bags.extract import CRC_KEY, rotate
@@ -51,7 +53,7 @@ from nanosysid.sim.simulator import (
 )
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["RecorderConfig", "record_flight", "ERPM_PER_RADS"]
+__all__ = ["RecorderConfig", "record_flight", "firmware_lowpass", "ERPM_PER_RADS"]
 
 # mechanical rad/s -> eRPM with 6 pole pairs: eRPM = 6 * rpm = 6 * 60 / (2 pi) * omega
 ERPM_PER_RADS = 6 * 60 / (2 * math.pi)
@@ -75,6 +77,8 @@ class RecorderConfig:
     wifi_jitter: float
     wifi_loss: float
     motor_delay: float
+    gyro_lowpass: float
+    accel_lowpass: float
     motor_missed: float
     odom_pos_noise: float
     status_rate: float
@@ -109,6 +113,19 @@ def _header(store, t: float, frame: str):
 
 def _slerp(t_src: np.ndarray, quats: np.ndarray, t: np.ndarray) -> np.ndarray:
     return Slerp(t_src, Rotation.from_quat(quats))(t).as_quat()
+
+
+def firmware_lowpass(t: np.ndarray, x: np.ndarray, cutoff: float) -> tuple[np.ndarray, float]:
+    """``x (N, C)`` sampled at the even times ``t (N,)`` (s) through a causal second-order
+    Butterworth low-pass of ``cutoff`` Hz, started at rest on its first sample (the filter the
+    firmware runs on each IMU axis), and the filter's delay (s) at low frequency (its group delay
+    at 0 Hz, ``sqrt(2) / (2 pi cutoff)`` for the analogue filter). ``cutoff`` 0 leaves ``x`` as it is."""
+    if cutoff <= 0:
+        return x, 0.0
+    fs = 1.0 / float(t[1] - t[0])
+    b, a = butter(2, cutoff, fs=fs)
+    y, _ = lfilter(b, a, x, axis=0, zi=lfilter_zi(b, a)[:, None] * x[:1])
+    return y, float(group_delay((b, a), w=[1e-6], fs=fs)[1][0]) / fs
 
 
 def record_flight(
@@ -172,6 +189,10 @@ def record_flight(
     q_true = _slerp(tau_all, x[:, 6:10], tau_o)
     w_true = interp_columns(tau_all, x[:, 10:13], tau_o)
     acc_true = interp_columns(tau_all, raw.wrench[i, :, :3], tau_o) / vehicle.mass
+    # what the IMU reads: the truth through the firmware's filters, delayed by them a few ms
+    w_read = interp_columns(tau_all, firmware_lowpass(tau_all, x[:, 10:13], cfg.gyro_lowpass)[0], tau_o)
+    force_read, accel_delay = firmware_lowpass(tau_all, raw.wrench[i, :, :3], cfg.accel_lowpass)
+    acc_read = interp_columns(tau_all, force_read, tau_o) / vehicle.mass
     om_true = interp_columns(tau_all, omega, tau_o)
 
     def wifi(n_msgs):
@@ -206,8 +227,8 @@ def record_flight(
     # the airframe shakes with the rotors as they turn
     vib = vibration_scale(interp_columns(tau_all, raw.turning(i), tau_o), 1.0 / cfg.onboard_rate,
                           noise.vibration_ref)[:, None]
-    gyro = w_true + vib * rng.normal(scale=noise.gyro, size=(n, 3))
-    acc = acc_true + vib * rng.normal(scale=noise.accel, size=(n, 3)) + accel_bias(noise, rng)
+    gyro = w_read + vib * rng.normal(scale=noise.gyro, size=(n, 3))
+    acc = acc_read + vib * rng.normal(scale=noise.accel, size=(n, 3)) + accel_bias(noise, rng)
     Imu, QuatT = T["sensor_msgs/msg/Imu"], T["geometry_msgs/msg/Quaternion"]
     cov9 = np.zeros(9)
     recv, drop = wifi(n), lost(n)
@@ -264,7 +285,9 @@ def record_flight(
         "mocap_clock": cfg.mocap_clock,
         # stm time minus mocap time of the same instant, at tau = 0
         "mocap_to_stm_offset": cfg.stm_clock - cfg.mocap_clock,
-        "motor_lag": motor_lag,
+        # the motor readings' lag behind the accelerometer's, what the sync stage estimates: the
+        # accelerometer's filter delays it too
+        "motor_lag": motor_lag - accel_delay,
     }
     truth = pd.DataFrame({"t_stm": t_stm, "tau": tau_o})
     for name, arr in (("p", p_true), ("v", v_true), ("q", q_true), ("w", w_true), ("acc", acc_true), ("omega", om_true)):

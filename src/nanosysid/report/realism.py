@@ -242,8 +242,9 @@ WHY = {
            "makes the Square's, with its climbs and descents of 1 m, the largest; the world's K_z is Förster's "
            "Crazyflie 2 value, a third of that, so its thrust residual is mostly its thrust fluctuation (3 Hz), "
            "sized so that the physics row matches the paper's (reports/sim/stats.md)",
-    "motor lag": "the world delays the recorded rotor speeds by its telemetry delay (30 ms), which the sync stage "
-                 "must find; the rig's logs lag by a few ms, as the sync stage measures them",
+    "motor lag": "the world's rotor speeds are recorded as they turn and its IMU reads through the firmware's "
+                 "filters (`sim.recorder`), so its motor readings lead the accelerometer by that filter's delay "
+                 "alone, as the rig's do; a telemetry delay (`sim.effects.telemetry_delay`) adds to it",
     "motion": "the simulator flies the paper's Square and Chirp as published and the rig's logged Random and "
               "Melon, with a position loop stiffer than the firmware's default (`sim.flight.gains`); the rig's "
               "Melon rolls and yaws more in its two transients: in its first two seconds, the climb from the "
@@ -282,8 +283,8 @@ def markdown(result: Mapping[str, Any]) -> str:
         L.append(f"| {r['trajectory']} | {r['figure']} | {r['world']:.4g} | {r['real']:.4g} | {r['ratio']:.2f} | "
                  f"{_why(r['figure'])} |")
     L += ["", "The world's gyro, accelerometer and rotor-speed noise are set at the rig's levels after the data chain, "
-          "growing with how much the rotors move. Its effects, their bands and the telemetry delay are not fitted to "
-          "these figures: each "
+          "growing with how much the rotors move, and its IMU reads through the firmware's filters. Its effects and "
+          "their bands are not fitted to these figures: each "
           "moves the benchmark's pattern on the simulated world (reports/sim/stats.md), which is what the world "
           "is tuned to show.", ""]
     if "noise_law" in result:

@@ -340,7 +340,9 @@ RECORDS: tuple[WorldEffect, ...] = (
     WorldEffect(
         "telemetry_delay", "the recorded rotor speeds lag the true ones",
         f"the recorded rotor speeds lag the true ones by {TELEMETRY_DELAY * 1e3:g} ms",
-        "the recorded rotor speeds' history", default=1.0, described_by=frozenset({"input_delay"}),
+        # off in the default world: the rig's motor readings lag its accelerometer by no more than
+        # the accelerometer's own filter (reports/rig/world.md, the motor lag)
+        "the recorded rotor speeds' history", default=0.0, described_by=frozenset({"input_delay"}),
         truth=("input_delay", lambda s, vehicle: [s * TELEMETRY_DELAY])),
     WorldEffect(
         "thrust_lag", "part of each rotor's thrust and drag torque follows its speed through a slow lag",
