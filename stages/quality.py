@@ -28,6 +28,7 @@ def main(cfg: DictConfig) -> None:
         test_trajectories=list(cfg.split.test),
         horizon=int(cfg.eval.horizon),
         lag_tolerance=float(r.sync.lag_tolerance),
+        rotor_delay=float(cfg.data.rotor_delay or 0.0),
     )
 
 
