@@ -1,6 +1,7 @@
 """Rerun recordings: the same flight and models give the same bytes wherever they are written, and
 the file holds what was logged."""
 
+import struct
 import subprocess
 import sys
 
@@ -115,8 +116,16 @@ def test_a_stream_cut_short_is_one_error_naming_the_argument(tmp_path):
     rec.flush()
     rec.disconnect()
     data = path.read_bytes()
-    # cut anywhere: in a message's header, in its body (an Arrow chunk's), or between two messages
-    for cut in range(13, len(data), 37):
+    # the messages up to rerun's end message (its footer after it is rebuilt, never read): each is a
+    # u64 kind and a u64 length, then its body
+    whole = 12
+    while True:
+        kind, n = struct.unpack_from("<QQ", data, whole)
+        whole += 16 + n
+        if kind == rrd._END:
+            break
+    # cut anywhere before that end: in a message's header, in its body (an Arrow chunk's), or between two
+    for cut in range(13, whole, 37):
         with pytest.raises(DataError, match=r"rrd.canonical: data is not a whole RRD stream, cut short or damaged"):
             rrd.canonical(data[:cut], "flight")
 
