@@ -299,6 +299,11 @@ def test_the_world_comparison_reads_the_rotors_reaction_in_the_yaw_residual():
     mixed = realism.yaw_reaction(flights[1:], vehicle)["chirp"]
     assert mixed["J_r [kg m²]"] == pytest.approx(jr, rel=0.02)
     assert mixed["correlation"] == pytest.approx(1 / np.sqrt(2), abs=0.03)
+    # the 3 Hz swing is within the yaw loop's reach, one at 6 Hz beyond it: all of its power above 4 Hz
+    above = "yaw-differential rotor acceleration above 4 Hz [% of its power]"
+    assert pure[above] < 1.0
+    fast = Flight("melon_20250101_run1", t, b + amp * np.sin(2 * w * t)[:, None] * spin, flights[0].y, extra)
+    assert realism.yaw_reaction([fast], vehicle)["melon"][above] > 99.0
     # two runs of rotors of 2e-8 and 4e-8 kg m²: the mean 3e-8, and the 95 % half-width Student's
     # t with one degree of freedom (12.706) times the standard error (std 1.414e-8 over sqrt 2)
     runs = []

@@ -126,16 +126,24 @@ def _by_trajectory(by: Mapping[str, Sequence[Mapping[str, float]]], coefficient:
     return out
 
 
+# Hz: the yaw loop's reach. The Mellinger yaw-rate gain over the body's yaw inertia (kw_z / J_z,
+# 26 rad/s) puts its bandwidth at about 4 Hz; the rotors' first-order response (20-60 ms) and the
+# IMU's filters take its phase beyond that
+YAW_SWING_SPLIT = 4.0
+
+
 def yaw_reaction(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, order: int = 3
                  ) -> dict[str, dict[str, float]]:
     """How much of the nominal model's yaw torque residual is the rotors' reaction to their own
     acceleration, ``-J_r sum_i s_i dOmega_i/dt`` (``s_i`` the spin directions): per trajectory,
     averaged over its runs, the least-squares ``J_r`` (kg m²) of each flight's yaw residual on
     that sum (with the half-width of its 95 % interval over the runs, Student's t), their
-    correlation, and the sum's std (rad/s², the rotors' yaw-differential acceleration). The rotor
-    speeds are differentiated by the same Savitzky-Golay filter as the body rates, so that the
-    filter's own attenuation cancels in ``J_r``."""
-    from scipy.signal import savgol_filter
+    correlation, the sum's std (rad/s², the rotors' yaw-differential acceleration) and the share
+    of the sum's power above :data:`YAW_SWING_SPLIT` (%, Welch's estimate): a swing the yaw loop
+    answers sits below it, one faster than the loop above. The rotor speeds are differentiated
+    by the same Savitzky-Golay filter as the body rates, so that the filter's own attenuation
+    cancels in ``J_r``."""
+    from scipy.signal import savgol_filter, welch
 
     spin = np.asarray(dynamics.SPIN)
     by: dict[str, list[dict[str, float]]] = {}
@@ -144,9 +152,12 @@ def yaw_reaction(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, 
         dt = float(np.median(np.diff(f.t)))
         x = -(savgol_filter(f.u, window, order, deriv=1, delta=dt, axis=0) @ spin)[EDGE:-EDGE]
         x, y = x - x.mean(), y - y.mean()
+        fr, p = welch(x, fs=1 / dt, nperseg=min(512, len(x)), detrend=False)
         by.setdefault(f.trajectory, []).append({
             "J_r [kg m²]": float(x @ y / (x @ x)), "correlation": float(np.corrcoef(x, y)[0, 1]),
-            "yaw-differential rotor acceleration [rad/s² std]": float(x.std())})
+            "yaw-differential rotor acceleration [rad/s² std]": float(x.std()),
+            f"yaw-differential rotor acceleration above {YAW_SWING_SPLIT:g} Hz [% of its power]":
+                float(100 * p[fr > YAW_SWING_SPLIT].sum() / p.sum())})
     return _by_trajectory(by, "J_r [kg m²]")
 
 
@@ -226,8 +237,10 @@ WHY = {
              "inertia below the world's (the world's outside three of its four trajectories' 95 % intervals), and "
              "its rotors swing in yaw faster and harder than the world's); the world's is mostly its "
              "rotors' drag-torque fluctuation (`unsteady_thrust`, 3 Hz) and its yaw turbulence, which the controller "
-             "answers through the rotor speeds, a band below the rig's. The rig's flights do not tell what drives "
-             "its rotors' yaw-differential swing",
+             "answers through the rotor speeds, a band below the rig's. On the rig's Chirp most of the rotors' "
+             "yaw-differential swing lies above 4 Hz, beyond the reach of a yaw loop of the firmware's gains (the "
+             "section's last column), where the world's lies mostly below: that part is not the controller's answer "
+             "to a yaw torque, and the rig's flights do not tell what drives it",
     "median frequency": "the world's time-varying effects have corners of 1 Hz (the turbulence's force), 0.4 Hz "
                         "(its roll and pitch torque, the rig's band), 3 Hz (its yaw torque) and 3 Hz (the thrust "
                         "fluctuation, which carries the world's thrust residual to about 1 Hz); the rig's force "
