@@ -121,6 +121,8 @@ def _world_beside(cfg: DictConfig, bench, sync) -> dict:
                              "real": realism.yaw_reaction(real, rig_vehicle, w, o)},
             "climb_drag": {"world": realism.climb_drag(world, sim_vehicle, w, o),
                            "real": realism.climb_drag(real, rig_vehicle, w, o)},
+            "torque_bands": {"world": realism.torque_bands(world, sim_vehicle, w, o),
+                             "real": realism.torque_bands(real, rig_vehicle, w, o)},
             "rotor_drag_z": ROTOR_DRAG[2] * float(cfg.sim.effects.get("rotor_drag", 0.0)),
             "rotor_inertia": ROTOR_INERTIA * float(cfg.sim.effects.get("rotor_inertia", 0.0))}
 

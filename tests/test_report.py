@@ -317,6 +317,33 @@ def test_the_world_comparison_reads_the_rotors_reaction_in_the_yaw_residual():
     assert two["J_r, 95 % half-width over the runs [kg m²]"] == pytest.approx(12.706 * 1.0e-8, rel=0.01)
 
 
+def test_the_world_comparison_splits_the_roll_residual_into_its_bands():
+    # a hover whose roll torque is three sines, at 0.03, 0.3 and 1.6 Hz (whole cycles over the
+    # 100 s), integrated by hand into the roll rate: each band between 0.1, 0.8 and 3.2 Hz holds
+    # one sine, whose RMS is its amplitude over sqrt 2; nothing lies above 3.2 Hz, and the pitch
+    # residual, with no torque, is zero in every band
+    import yaml
+
+    from nanosysid.dataio import Flight
+    from nanosysid.report import realism
+    from nanosysid.vehicle import Vehicle
+
+    vehicle = Vehicle.from_mapping(yaml.safe_load(open("conf/vehicle/cf21bl.yaml")))
+    b, t = 1750.0, np.arange(10000) * 0.01
+    amps = {0.03: 0.4e-3, 0.3: 0.6e-3, 1.6: 0.2e-3}  # Hz: N m
+    y = np.zeros((len(t), 13))
+    y[:, 9] = 1.0
+    y[:, 10] = sum(-a * np.cos(2 * np.pi * f * t) / (2 * np.pi * f * vehicle.inertia[0]) for f, a in amps.items())
+    extra = {"ax_body": np.zeros(len(t)), "ay_body": np.zeros(len(t)),
+             "az_body": np.full(len(t), vehicle.k_f * 4 * b**2 / vehicle.mass)}
+    bands = realism.torque_bands([Flight("chirp_20250101_run1", t, np.full((len(t), 4), b), y, extra)],
+                                 vehicle)["chirp"]
+    for band, f in (("below 0.1 Hz", 0.03), ("0.1-0.8 Hz", 0.3), ("0.8-3.2 Hz", 1.6)):
+        assert bands[f"tau_x residual {band} [mN·m RMS]"] == pytest.approx(1e3 * amps[f] / np.sqrt(2), rel=0.03)
+        assert bands[f"tau_y residual {band} [mN·m RMS]"] == pytest.approx(0.0, abs=1e-9)
+    assert bands["tau_x residual above 3.2 Hz [mN·m RMS]"] < 0.01 * 1e3 * amps[0.3]
+
+
 def _bobbing_hovers(drags, name, slow=None, noise=0.0, rng=None, samples=3000):
     """Hovers tilted 30 degrees in roll that bob along their body z axis at 0.4 Hz, ``v_z = V
     sin(w t)``, and drift along their body y axis (which the drag along z must not read), rotors
