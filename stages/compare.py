@@ -113,16 +113,11 @@ def _world_beside(cfg: DictConfig, bench, sync) -> dict:
     sim_vehicle = identified_vehicle(vehicle_of(cfg), str(Path(p.world_identify) / "params.json"))
     rig_vehicle = identified_vehicle(vehicle_of(cfg), str(Path(cfg.identify.out_dir) / "params.json"))
     sim_sync = json.loads((Path(p.world_data_report) / "sync.json").read_text())
-    world, real = sim_bench.train + sim_bench.test, bench.train + bench.test
-    result = realism.compare(realism.world_figures(world, sim_vehicle, w, o), realism.world_figures(real, rig_vehicle, w, o),
+    world = realism.analyses(sim_bench.train + sim_bench.test, sim_vehicle, w, o)
+    real = realism.analyses(bench.train + bench.test, rig_vehicle, w, o)
+    result = realism.compare(world.pop("figures"), real.pop("figures"),
                              (float(sim_sync[0]["motor_lag"]), float(sync[0]["motor_lag"])))
-    return {**result, "noise_law": {"world": realism.noise_law(world), "real": realism.noise_law(real)},
-            "yaw_reaction": {"world": realism.yaw_reaction(world, sim_vehicle, w, o),
-                             "real": realism.yaw_reaction(real, rig_vehicle, w, o)},
-            "climb_drag": {"world": realism.climb_drag(world, sim_vehicle, w, o),
-                           "real": realism.climb_drag(real, rig_vehicle, w, o)},
-            "torque_bands": {"world": realism.torque_bands(world, sim_vehicle, w, o),
-                             "real": realism.torque_bands(real, rig_vehicle, w, o)},
+    return {**result, **{k: {"world": world[k], "real": real[k]} for k in world},
             "rotor_drag_z": ROTOR_DRAG[2] * float(cfg.sim.effects.get("rotor_drag", 0.0)),
             "rotor_inertia": ROTOR_INERTIA * float(cfg.sim.effects.get("rotor_inertia", 0.0))}
 

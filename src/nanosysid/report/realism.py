@@ -18,8 +18,8 @@ from nanosysid.effects import CHANNELS
 from nanosysid.report.stats import flight_stats
 from nanosysid.vehicle import Vehicle
 
-__all__ = ["TOLERANCE", "world_figures", "noise_law", "yaw_reaction", "climb_drag", "torque_bands", "compare",
-           "markdown"]
+__all__ = ["TOLERANCE", "world_figures", "noise_law", "yaw_reaction", "climb_drag", "torque_bands", "analyses",
+           "compare", "markdown"]
 
 TOLERANCE = 0.25
 
@@ -61,6 +61,10 @@ def _residual(f: Flight, vehicle: Vehicle, window: int, order: int) -> np.ndarra
     return (measured_wrench(f, vehicle, window, order) - nominal_wrench(f.u, vehicle))[EDGE:-EDGE]
 
 
+def _residuals(flights: Sequence[Flight], vehicle: Vehicle, window: int, order: int) -> list[np.ndarray]:
+    return [_residual(f, vehicle, window, order) for f in flights]
+
+
 def _flight(f: Flight, r: np.ndarray, gravity: float) -> dict[str, float]:
     s = flight_stats(f, gravity)
     out = {"v_mean [m/s]": s["v_mean"], "v_max [m/s]": s["v_max"], "a_max [m/s²]": s["a_max"],
@@ -83,12 +87,16 @@ def world_figures(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15,
     ``vehicle``, the k_F and k_M its pipeline identified); under ``all``, the standard deviation
     over the flights of each flight's mean residual: a constant of a flight (where the vehicle
     changes between flights) that a model starting from the state alone cannot know."""
+    return _world_figures(flights, _residuals(flights, vehicle, window, order), vehicle.gravity)
+
+
+def _world_figures(flights: Sequence[Flight], residuals: Sequence[np.ndarray], gravity: float
+                   ) -> dict[str, dict[str, float]]:
     by: dict[str, list[dict[str, float]]] = {}
     means = []
-    for f in flights:
-        r = _residual(f, vehicle, window, order)
+    for f, r in zip(flights, residuals):
         means.append(r.mean(axis=0))
-        by.setdefault(f.trajectory, []).append(_flight(f, r, vehicle.gravity))
+        by.setdefault(f.trajectory, []).append(_flight(f, r, gravity))
     out = {t: {k: float(np.mean([r[k] for r in runs])) for k in runs[0]} for t, runs in by.items()}
     if len(means) > 1:
         s = 1e3 * spread(np.asarray(means))[0]
@@ -144,12 +152,17 @@ def yaw_reaction(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, 
     answers sits below it, one faster than the loop above. The rotor speeds are differentiated
     by the same Savitzky-Golay filter as the body rates, so that the filter's own attenuation
     cancels in ``J_r``."""
+    return _yaw_reaction(flights, _residuals(flights, vehicle, window, order), window, order)
+
+
+def _yaw_reaction(flights: Sequence[Flight], residuals: Sequence[np.ndarray], window: int, order: int
+                  ) -> dict[str, dict[str, float]]:
     from scipy.signal import savgol_filter, welch
 
     spin = np.asarray(dynamics.SPIN)
     by: dict[str, list[dict[str, float]]] = {}
-    for f in flights:
-        y = _residual(f, vehicle, window, order)[:, 5]
+    for f, r in zip(flights, residuals):
+        y = r[:, 5]
         dt = float(np.median(np.diff(f.t)))
         x = -(savgol_filter(f.u, window, order, deriv=1, delta=dt, axis=0) @ spin)[EDGE:-EDGE]
         x, y = x - x.mean(), y - y.mean()
@@ -171,14 +184,19 @@ def climb_drag(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, or
     interval over the runs, Student's t), their correlation, and ``v_z``'s std (m/s, the body-z
     velocity). The regressor is smoothed by the same Savitzky-Golay filter as the accelerometer,
     so that the filter cancels in ``K_z``."""
+    return _climb_drag(flights, _residuals(flights, vehicle, window, order), window, order)
+
+
+def _climb_drag(flights: Sequence[Flight], residuals: Sequence[np.ndarray], window: int, order: int
+                ) -> dict[str, dict[str, float]]:
     import torch
     from scipy.signal import savgol_filter
 
     from nanosysid.so3 import quat_to_rotmat
 
     by: dict[str, list[dict[str, float]]] = {}
-    for f in flights:
-        y = _residual(f, vehicle, window, order)[:, 2]
+    for f, r in zip(flights, residuals):
+        y = r[:, 2]
         R = quat_to_rotmat(torch.from_numpy(f.y[:, 6:10])).numpy()
         v_z = np.einsum("ti,ti->t", R[:, :, 2], f.y[:, 3:6])  # the world velocity on the body's z axis
         x = -savgol_filter(f.u.sum(1) * v_z, window, order, axis=0)[EDGE:-EDGE]
@@ -201,14 +219,18 @@ def torque_bands(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, 
     averaged over its runs, the residual's RMS (mN m) in each band between
     :data:`TORQUE_BAND_EDGES` (the flight's mean out; a band is the difference of two
     zero-phase fourth-order Butterworth low-passes, so the bands add up to the residual)."""
+    return _torque_bands(flights, _residuals(flights, vehicle, window, order))
+
+
+def _torque_bands(flights: Sequence[Flight], residuals: Sequence[np.ndarray]) -> dict[str, dict[str, float]]:
     from scipy.signal import butter, sosfiltfilt
 
     edges = TORQUE_BAND_EDGES
     names = [f"below {edges[0]:g} Hz", *(f"{a:g}-{b:g} Hz" for a, b in zip(edges, edges[1:])),
              f"above {edges[-1]:g} Hz"]
     by: dict[str, list[dict[str, float]]] = {}
-    for f in flights:
-        r = _residual(f, vehicle, window, order)[:, 3:5]
+    for f, r in zip(flights, residuals):
+        r = r[:, 3:5]
         r = 1e3 * (r - r.mean(axis=0))
         fs = 1 / float(np.median(np.diff(f.t)))
         low = [np.zeros_like(r)] + [sosfiltfilt(butter(4, e, fs=fs, output="sos"), r, axis=0) for e in edges] + [r]
@@ -216,6 +238,16 @@ def torque_bands(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, 
             f"{ch} residual {name} [mN·m RMS]": float(np.sqrt(np.mean((low[k + 1][:, c] - low[k][:, c]) ** 2)))
             for c, ch in enumerate(("tau_x", "tau_y")) for k, name in enumerate(names)})
     return {t: {k: float(np.mean([r[k] for r in runs])) for k in runs[0]} for t, runs in by.items()}
+
+
+def analyses(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, order: int = 3) -> dict[str, Any]:
+    """One side of the comparison from a single pass over the nominal model's residual:
+    :func:`world_figures` under ``figures``, then ``noise_law``, ``yaw_reaction``, ``climb_drag``
+    and ``torque_bands``, each as its function gives it."""
+    r = _residuals(flights, vehicle, window, order)
+    return {"figures": _world_figures(flights, r, vehicle.gravity), "noise_law": noise_law(flights),
+            "yaw_reaction": _yaw_reaction(flights, r, window, order),
+            "climb_drag": _climb_drag(flights, r, window, order), "torque_bands": _torque_bands(flights, r)}
 
 
 def compare(world: Mapping[str, Mapping[str, float]], real: Mapping[str, Mapping[str, float]],
@@ -254,10 +286,10 @@ WHY = {
               "accelerometer's bias at the rig's size): its slow roll turbulence (0.4 Hz, the rig's band) leaves "
               "each flight a mean torque of about 0.1 mN m, above the rig's roll figure (the rig's roll residual "
               "has little power below 0.1 Hz: the section 'The roll and pitch residual's bands'); the rig's mean "
-              "pitch and "
-              "yaw torques move together between groups of consecutive flights (the vehicle changed between them: "
-              "its centre of mass moved by a few tenths of a millimetre when the battery was changed, most "
-              "likely), which the world, one vehicle with one centre of mass for all its flights, does not have",
+              "pitch and yaw torques move together between groups of consecutive flights (the vehicle changed "
+              "between them: its centre of mass moved by a few tenths of a millimetre when the battery was "
+              "changed, most likely), which the world, one vehicle with one centre of mass for all its flights, "
+              "does not have",
     "residual": "the world's effects have one size for every trajectory: its rotor drag is the rig's (K_xy), its "
                 "turbulence torque the rig's residual per axis, its turbulence force and thrust fluctuation sized "
                 "so that the physics row matches the paper's (reports/sim/stats.md); the rig's residual varies "
