@@ -211,6 +211,10 @@ def _climb_drag(flights: Sequence[Flight], residuals: Sequence[np.ndarray], wind
 # drift, the trajectories' band, the rotors' fluctuation, and above it mostly the gyro's noise
 # through the derivative
 TORQUE_BAND_EDGES = (0.1, 0.8, 3.2)
+# the bands' names, lowest first: the report's columns and the figures' keys
+TORQUE_BANDS = (f"below {TORQUE_BAND_EDGES[0]:g} Hz",
+                *(f"{a:g}-{b:g} Hz" for a, b in zip(TORQUE_BAND_EDGES, TORQUE_BAND_EDGES[1:])),
+                f"above {TORQUE_BAND_EDGES[-1]:g} Hz")
 
 
 def torque_bands(flights: Sequence[Flight], vehicle: Vehicle, window: int = 15, order: int = 3
@@ -226,8 +230,6 @@ def _torque_bands(flights: Sequence[Flight], residuals: Sequence[np.ndarray]) ->
     from scipy.signal import butter, sosfiltfilt
 
     edges = TORQUE_BAND_EDGES
-    names = [f"below {edges[0]:g} Hz", *(f"{a:g}-{b:g} Hz" for a, b in zip(edges, edges[1:])),
-             f"above {edges[-1]:g} Hz"]
     by: dict[str, list[dict[str, float]]] = {}
     for f, r in zip(flights, residuals):
         r = r[:, 3:5]
@@ -236,7 +238,7 @@ def _torque_bands(flights: Sequence[Flight], residuals: Sequence[np.ndarray]) ->
         low = [np.zeros_like(r)] + [sosfiltfilt(butter(4, e, fs=fs, output="sos"), r, axis=0) for e in edges] + [r]
         by.setdefault(f.trajectory, []).append({
             f"{ch} residual {name} [mN·m RMS]": float(np.sqrt(np.mean((low[k + 1][:, c] - low[k][:, c]) ** 2)))
-            for c, ch in enumerate(("tau_x", "tau_y")) for k, name in enumerate(names)})
+            for c, ch in enumerate(("tau_x", "tau_y")) for k, name in enumerate(TORQUE_BANDS)})
     return {t: {k: float(np.mean([r[k] for r in runs])) for k in runs[0]} for t, runs in by.items()}
 
 
@@ -353,6 +355,19 @@ def _why(figure: str) -> str:
     return WHY["motion"]
 
 
+def _bands_table(part: Mapping[str, Mapping[str, Mapping[str, float]]], title: str, text: str) -> list[str]:
+    """:func:`torque_bands`' section: a row per trajectory and axis, a column pair per band."""
+    L = [f"## {title}", "", f"{text}; RMS in mN·m, each averaged over a trajectory's runs:", "",
+         "| trajectory | axis | " + " | ".join(f"{b}, world | {b}, real" for b in TORQUE_BANDS) + " |",
+         "|---|---|" + "---|---|" * len(TORQUE_BANDS)]
+    for t in sorted(set(part["world"]) & set(part["real"])):
+        for ch in ("tau_x", "tau_y"):
+            cells = [f"{part[side][t][f'{ch} residual {b} [mN·m RMS]']:.3g}" for b in TORQUE_BANDS
+                     for side in ("world", "real")]
+            L.append(f"| {t} | {ch} | " + " | ".join(cells) + " |")
+    return L + [""]
+
+
 def markdown(result: Mapping[str, Any]) -> str:
     """The comparison as a report: every figure off by more than the tolerance, then the table."""
     tol = result["tolerance"]
@@ -395,19 +410,10 @@ def markdown(result: Mapping[str, Any]) -> str:
         if key not in result:
             continue
         part = result[key]
-        keys = list(next(iter(part["real"].values())))
-        if key == "torque_bands":  # a row per trajectory and axis, a column pair per band
-            bands = [k.split(" residual ")[1].split(" [")[0] for k in keys if k.startswith("tau_x")]
-            L += [f"## {title}", "", f"{text}; RMS in mN·m, each averaged over a trajectory's runs:", "",
-                  "| trajectory | axis | " + " | ".join(f"{b}, world | {b}, real" for b in bands) + " |",
-                  "|---|---|" + "---|---|" * len(bands)]
-            for t in sorted(set(part["world"]) & set(part["real"])):
-                for ch in ("tau_x", "tau_y"):
-                    cells = [f"{part[side][t][f'{ch} residual {b} [mN·m RMS]']:.3g}" for b in bands
-                             for side in ("world", "real")]
-                    L.append(f"| {t} | {ch} | " + " | ".join(cells) + " |")
-            L.append("")
+        if key == "torque_bands":
+            L += _bands_table(part, title, text)
             continue
+        keys = list(next(iter(part["real"].values())))
         L += [f"## {title}", "", f"{text}; each figure averaged over a trajectory's runs:", "",
               "| trajectory | " + " | ".join(f"{k}, world | {k}, real" for k in keys) + " |",
               "|---|" + "---|---|" * len(keys)]
