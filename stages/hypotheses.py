@@ -50,7 +50,7 @@ def main(cfg: DictConfig) -> dict:
     data = hypotheses.torque_data(bench.train, vehicle, window=window, order=order, cutoff=cutoff)
     holds = _holds(cfg, bench.train, vehicle, window, order) if bool(hc.holds) else {}
     result = hypotheses.tested_apart(data, hypotheses.reference_correlation(bench.train, data),
-                                        holds=holds or None)
+                                        vehicle=vehicle, holds=holds or None)
     record = {"named": result["named"], "share": result["share"], "air": result["air"], "hover": result["hover"],
               "repeats": result["repeats"], "hypotheses": result["hypotheses"],
               "rounds": result["rounds"]}

@@ -94,7 +94,7 @@ def test_a_centre_of_mass_offset_is_named_and_its_hover_torque_reproduced():
     rng = np.random.default_rng(0)
     truth = np.array([1.0e-3, -0.6e-3])
     data, index = _data(lambda c, ref, run: c["cg_offset"] @ truth + 1e-6 * rng.normal(size=(1500, 2)), _columns)
-    res = H.tested_apart(data, index)
+    res = H.tested_apart(data, index, vehicle=Vehicle())
     assert res["named"] == ["cg_offset"]
     assert res["hover"]["significant"] and res["hover"]["reproduced"]["cg_offset"] > 0.99
     assert res["hypotheses"]["battery_thrust"]["status"] == "untestable"
@@ -106,7 +106,7 @@ def test_a_drag_moment_is_not_called_a_centre_of_mass_offset():
     rng = np.random.default_rng(1)
     data, index = _data(lambda c, ref, run: c["drag_moment"][:, :, 0] * 8e-4 + 1e-6 * rng.normal(size=(1500, 2)),
                         _columns)
-    res = H.tested_apart(data, index)
+    res = H.tested_apart(data, index, vehicle=Vehicle())
     assert res["named"][0] in ("drag_moment", "induced_drag_moment") and "cg_offset" not in res["named"]
     # it vanishes in hover, and so does the torque
     assert not res["hover"]["significant"]
@@ -117,10 +117,50 @@ def test_a_torque_that_does_not_repeat_is_the_air_even_where_a_history_fits_it()
     # columns (slow_actuation's) carry the disturbance, as a history's columns do in closed
     # loop; what they explain does not repeat between runs, so it is no function of the reference
     data, index = _data(lambda c, ref, run: c["slow_actuation"] @ np.array([1e-4, 5e-5, 0.0]), _columns)
-    res = H.tested_apart(data, index)
+    res = H.tested_apart(data, index, vehicle=Vehicle())
     assert res["hypotheses"]["slow_actuation"]["share"] > 0.5
     assert res["named"] == [H.AIR]
     assert res["hypotheses"]["slow_actuation"]["status"] == "excluded"
+
+
+def test_a_history_that_fits_the_controllers_answer_to_a_drag_moment_is_no_lag():
+    # closed loop: the rotors answer the whole torque, a drag moment D (a function of the flight,
+    # repeating between runs) and each run's air A, so their slow history (slow_actuation's first
+    # column here, half the answer) fits D + A with a share of 2 of the rotors' wrench, more than
+    # the drag moment alone explains (83 % held out); no lag of a rotor lags twice its
+    # wrench (the entry's bound is 1), so the drag moment is named, the history excluded as not
+    # physically possible
+    rng = np.random.default_rng(3)
+    air = {(ref, run): 0.3 * 8e-3 * _smooth(np.random.default_rng(50 + 10 * ref + run), 1500)[:, :, 0]
+           for ref in range(3) for run in range(2)}
+
+    def columns(ref, run, T):
+        cols = _columns(ref, run, T)
+        answer = cols["drag_moment"][:, :, 0] * 8e-4 + air[ref, run]
+        cols["slow_actuation"] = np.concatenate([0.5 * answer[:, :, None], _smooth(rng, T, 2) * 1e-6], axis=-1)
+        return cols
+
+    data, index = _data(lambda c, ref, run: 2.0 * c["slow_actuation"][:, :, 0], columns)
+    res = H.tested_apart(data, index, vehicle=Vehicle())
+    slow = res["rounds"][0]["gains"]["slow_actuation"]
+    assert slow["gain"] > res["rounds"][0]["gains"]["drag_moment"]["gain"] + H.TIE  # it fits best ...
+    assert slow["implausible"].startswith("g_0.1s beyond the entry's bound")  # ... with g_0.1s = 2
+    assert res["named"][0] in ("drag_moment", "induced_drag_moment") and "slow_actuation" not in res["named"]
+    assert res["hypotheses"]["slow_actuation"]["status"] == "excluded"
+
+
+def test_the_library_rules_judge_a_lag_and_a_spread_by_hand():
+    vehicle = Vehicle()
+    # a quarter of the wrench 0.1 s late: a lag; twice the wrench: beyond the bound of 1
+    assert H.implausible("slow_actuation", [0.25, 0.0, 0.0], [0.05] * 3, vehicle) == ""
+    assert "beyond the entry's bound (1)" in H.implausible("slow_actuation", [1.44, -2.11, 1.87], [0.4] * 3, vehicle)
+    # shares -0.5 at 0.1 s and +1 at 1 s: the step response 1 + 0.5 e^(-t/0.1) - e^(-t) starts at
+    # 0.5, dips to 0.247 at t = ln(5)/9 = 0.179 s and rises to 1 - e^(-5) = 0.993: it falls back by
+    # 0.253, half its rise of 0.493, where a lag may fall back by a quarter at most
+    assert H.implausible("slow_actuation", [-0.5, 0.0, 1.0], [0.1] * 3, vehicle).startswith("its coefficients")
+    # rotors 30 % apart: beyond rotor_spread's bound of 25 %
+    assert "beyond" in H.implausible("rotor_spread", [0.3, 0.0, 0.0], [0.01] * 3, vehicle)
+    assert H.implausible("drag_moment", [-8e-4], [1e-5], vehicle) == ""  # either sign: above or below
 
 
 def test_per_flight_interval_covers_the_truth_at_its_level():

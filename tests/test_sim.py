@@ -233,11 +233,11 @@ def test_rotor_drag_of_each_rotor_damps_a_roll():
     """Worked by hand: rolling at 1 rad/s in hover, rotor i at (x_i, y_i, h) moves at w x r_i =
     (0, -h, y_i): the rotors on the side going down meet air from below (axial inflow) and lose
     thrust, F_i = Omega (0, K_y h, -K_z y_i). Summed: F_y = 6889.69 * 2.8e-6 * 0.008 = 1.54329e-4 N,
-    tau_x = -sum Omega (K_z y_i^2 + K_y h^2) = -6889.69 (1e-6 * 0.03535^2 + 2.8e-6 * 0.008^2)
-    = -9.8441e-6 N m: a damping torque."""
+    tau_x = -sum Omega (K_z y_i^2 + K_y h^2) = -6889.69 (2e-6 * 0.03535^2 + 2.8e-6 * 0.008^2)
+    = -1.84537e-5 N m: a damping torque."""
     f, t = wrench("rotor_drag", state(w=(1.0, 0, 0)))
     assert torch.allclose(f[0], torch.tensor([0, 1.54329e-4, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
-    assert torch.allclose(t[0], torch.tensor([-9.8441e-6, 0, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
+    assert torch.allclose(t[0], torch.tensor([-1.84537e-5, 0, 0], dtype=torch.float64), rtol=1e-4, atol=1e-15)
 
 
 def test_body_drag_is_quadratic():

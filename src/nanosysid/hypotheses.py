@@ -28,7 +28,7 @@ between runs of one reference. :func:`verdict` names what the data support and w
 Example::
 
     data = torque_data(flights, vehicle)
-    result = tested_apart(data, reference_correlation(flights, data))
+    result = tested_apart(data, reference_correlation(flights, data), vehicle=vehicle)
     result["named"]      # e.g. ['induced_drag_moment', 'cg_offset'], ['air'] or []
 """
 
@@ -49,7 +49,8 @@ from nanosysid.identify import body_torque
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["HYPOTHESES", "HOLD", "AIR", "CUTOFF", "MIN_SHARE", "TIE", "REPEAT", "TorqueData", "torque_data",
-           "MIN_GAIN", "lowpass", "fit", "per_flight", "held_out", "hover_check", "reference_correlation", "hold_offset",
+           "MIN_GAIN", "lowpass", "fit", "per_flight", "held_out", "hover_check", "implausible",
+           "reference_correlation", "hold_offset",
            "tested_apart", "verdict"]
 
 # the library entries put to the tests, in the order the report lists them
@@ -257,18 +258,44 @@ def hold_offset(hold: Flight, vehicle: Vehicle, *, window: int = 15, order: int 
     return {"offset": theta.tolist(), "half_width": half.tolist(), "seconds": float(hold.t[keep[-1]] - hold.t[keep[0]])}
 
 
+def implausible(name: str, mean: Sequence[float], half_width: Sequence[float], vehicle: Vehicle) -> str:
+    """Why the library entry ``name``'s coefficients ``mean`` (with their 95 % half-widths from the
+    flights) cannot be the effect, by the entry's own rules, those discovery's selection applies
+    (:mod:`nanosysid.effects`): a coefficient whose sign physics fixes lies below zero by more
+    than its interval; a value beyond the entry's bound (a lag's share of the rotors' wrench
+    beyond 1: a band-pass of the rotor speeds, which fits the controller's answer to any slow
+    torque, not a lag); or coefficients without the shape physics gives them together. An empty
+    string where none applies."""
+    c = effects.entry(name)
+    low = [p for p, s, m, h in zip(c.params, c.signs, mean, half_width) if s > 0 and m < -h]
+    if low:
+        return f"{', '.join(p.split(' [')[0] for p in low)} below zero, against its physical sign"
+    values = c.values(mean, vehicle)
+    if c.bound is not None:
+        over = [p for p, x, n in zip(c.params, values, c.nominal(vehicle))
+                if not np.isfinite(x) or abs(x) > c.bound * abs(n)]
+        if over:
+            return (f"{', '.join(p.split(' [')[0] for p in over)} beyond the entry's bound "
+                    f"({c.bound:g}{' of the nominal' if name in ('inertia', 'arm') else ''})")
+    if c.shape is not None and not c.shape(values):
+        return "its coefficients do not have the shape physics gives them together"
+    return ""
+
+
 def _select(data: Sequence[TorqueData], columns: Mapping[str, int],
-            repeats: Mapping[str, float | None]) -> tuple[list[dict[str, Any]], list[str]]:
+            repeats: Mapping[str, float | None], vehicle: Vehicle) -> tuple[list[dict[str, Any]], list[str]]:
     """Forward selection over held-out shares: each round adds the candidate whose joint held-out
     share gains most, if the gain reaches :data:`MIN_SHARE` (first round) or :data:`MIN_GAIN`
-    (later), one of its coefficients' intervals from the flights excludes zero, and what it
-    explains repeats between runs of one reference (``repeats``: its prediction's correlation with
-    its partner runs', at least :data:`REPEAT`; None where no run has a partner). A function of
-    the state and the inputs along one reference repeats with it; a fit that follows the
-    controller's answer to a disturbance (the rotor speeds' history answers every torque that
-    acts) does not. Candidates whose gains lie within :data:`TIE` of the best are not told apart:
-    the one with the fewest coefficients (``columns``: each candidate's columns that are not zero)
-    is added. Returns the rounds and the names added."""
+    (later), one of its coefficients' intervals from the flights excludes zero, its coefficients
+    are physically possible (:func:`implausible`), and what it explains repeats between runs of
+    one reference (``repeats``: its prediction's correlation with its partner runs', at least
+    :data:`REPEAT`; None where no run has a partner). A function of the state and the inputs
+    along one reference repeats with it; a fit that follows the controller's answer to a
+    disturbance (the rotor speeds' history answers every torque that acts) does not, and where
+    the disturbance is itself a function of the state (a drag moment), the history that fits
+    the controller's answer to it is no lag. Candidates whose gains lie within :data:`TIE` of
+    the best are not told apart: the one with the fewest coefficients (``columns``: each
+    candidate's columns that are not zero) is added. Returns the rounds and the names added."""
     named: list[str] = []
     share = 0.0
     rounds = []
@@ -283,9 +310,10 @@ def _select(data: Sequence[TorqueData], columns: Mapping[str, int],
             sig = bool(np.any(np.abs(pf["mean"][own]) > pf["half_width"][own]))
             rep = repeats.get(c)
             gains[c] = {"gain": ho["share"] - share, "share": ho["share"], "significant": sig,
-                        "repeats": rep is None or rep >= REPEAT}
-        ok = {c: g for c, g in gains.items()
-              if g["significant"] and g["repeats"] and g["gain"] >= (MIN_GAIN if named else MIN_SHARE)}
+                        "repeats": rep is None or rep >= REPEAT,
+                        "implausible": implausible(c, pf["mean"][own], pf["half_width"][own], vehicle)}
+        ok = {c: g for c, g in gains.items() if g["significant"] and g["repeats"] and not g["implausible"]
+              and g["gain"] >= (MIN_GAIN if named else MIN_SHARE)}
         if not ok:
             rounds.append({"added": None, "gains": gains})
             return rounds, named
@@ -297,13 +325,14 @@ def _select(data: Sequence[TorqueData], columns: Mapping[str, int],
         share = ok[pick]["share"]
 
 
-def tested_apart(data: Sequence[TorqueData], index: np.ndarray | None = None, *,
+def tested_apart(data: Sequence[TorqueData], index: np.ndarray | None = None, *, vehicle: Vehicle,
                     holds: Mapping[str, Sequence[float]] | None = None) -> dict[str, Any]:
     """Every hypothesis' tests, the forward selection and the verdict.
 
     Args:
         data: The training flights' :func:`torque_data`.
         index: :func:`reference_correlation`'s partner index (None: no runs of one reference).
+        vehicle: The nominal vehicle (the bounds of the library's corrections are shares of it).
         holds: Flight name -> its take-off hold's :func:`hold_offset`, for the ``cg_offset@hold``
             hypothesis (None: not tested).
     Returns:
@@ -353,7 +382,7 @@ def tested_apart(data: Sequence[TorqueData], index: np.ndarray | None = None, *,
         repeats["residual"] = _correlation([d.r for d in data], index)
     for name, pred in preds.items():
         repeat(name, pred)
-    rounds, named = _select(data, {n: records[n]["columns"] for n in testable}, repeats["explained"])
+    rounds, named = _select(data, {n: records[n]["columns"] for n in testable}, repeats["explained"], vehicle)
     share = None
     if named:
         ho = held_out(data, named)
@@ -401,6 +430,8 @@ def verdict(records: dict[str, dict[str, Any]], rounds: list[dict[str, Any]], na
             why = [f"adds {g.get('gain', 0.0):+.0%} held out" + (f" to {', '.join(named)}" if named else "")]
             if not g.get("significant", False):
                 why.append("no coefficient's interval excludes zero")
+            if g.get("implausible"):
+                why.append(f"not physically possible: {g['implausible']}")
             if not g.get("repeats", True):
                 why.append(f"what it explains does not repeat between runs of one reference "
                            f"(correlation {repeats['explained'].get(name, 0.0):.2f})")

@@ -85,7 +85,7 @@ def check(worlds: Sequence[HypothesisWorld], *, cfg: SimConfig, vehicle: Vehicle
         for i, w in enumerate(part):
             own = flights[per * i:per * (i + 1)]
             data = hypotheses.torque_data(own, vehicle, window=window, order=order, cutoff=cutoff)
-            result = hypotheses.tested_apart(data, hypotheses.reference_correlation(own, data))
+            result = hypotheses.tested_apart(data, hypotheses.reference_correlation(own, data), vehicle=vehicle)
             cg = result["hypotheses"]["cg_offset"]
             truth = _truth(w, vehicle)
             covered = None

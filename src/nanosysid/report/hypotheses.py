@@ -79,13 +79,17 @@ def hypotheses_markdown(result: Mapping[str, Any], *, source: str, cutoff: float
     L += ["## The selection", "",
           f"Forward selection over held-out shares: a hypothesis joins when it adds at least "
           f"{100 * hypotheses.MIN_SHARE:.0f} % (the first) or {100 * hypotheses.MIN_GAIN:.0f} % (a later one) held out, "
-          "one of its coefficients' intervals excludes zero, and what it explains repeats between runs of one "
+          "one of its coefficients' intervals excludes zero, its coefficients are physically possible (the library "
+          "entry's signs, bound and shape, as discovery judges them: the rotors' slow history fits the controller's "
+          "answer to any slow torque, a drag moment's too, but only with shares no lag of a rotor's wrench has), and "
+          "what it explains repeats between runs of one "
           f"reference (correlation ≥ {hypotheses.REPEAT:g}: a fit that follows the controller's answer to a "
           "disturbance does not). Gains within "
           f"{100 * hypotheses.TIE:.0f} % of the best are not told apart; the one with the fewest coefficients joins.", ""]
     for k, rd in enumerate(result["rounds"], 1):
         gains = ", ".join(f"`{n}` {100 * g['gain']:+.1f} %{'' if g['significant'] else ' (n.s.)'}"
-                          f"{'' if g['repeats'] else ' (no repeat)'}" for n, g in rd["gains"].items())
+                          f"{'' if g['repeats'] else ' (no repeat)'}{' (not possible)' if g.get('implausible') else ''}"
+                          for n, g in rd["gains"].items())
         L.append(f"- round {k}: {('`' + rd['added'] + '` joins') if rd['added'] else 'none joins'}. Gains: {gains}.")
     L += ["", "## The hover check", ""]
     if hover["flights"]:

@@ -297,7 +297,10 @@ WHY = {
                 "so that the physics row matches the paper's (reports/sim/stats.md); the rig's residual varies "
                 "between trajectories more than that (its Square's thrust residual is the largest, its Random's "
                 "yaw residual the smallest), as effects the world lacks would make it; the residual also carries "
-                "the rotor speeds' noise through the nominal wrench, larger on the rig's Square than on the world's",
+                "the rotor speeds' noise through the nominal wrench, larger on the rig's Square than on the world's; "
+                "the rig's roll and pitch residual is mostly a drag moment, which grows with the speed and is "
+                "largest on its fastest flights, where the world's is mostly a turbulence of one size (the "
+                "figure 'median frequency')",
     "tau_z": "the rig's yaw residual is the rotors' reaction to their own acceleration (the section 'The yaw "
              "residual' below: on the rig it follows the rotors' yaw-differential acceleration with a rotor "
              "inertia below the world's (the world's outside three of its four trajectories' 95 % intervals), and "
@@ -307,25 +310,23 @@ WHY = {
              "yaw-differential swing lies above 4 Hz, beyond the reach of a yaw loop of the firmware's gains (the "
              "section's last column), where the world's lies mostly below: that part is not the controller's answer "
              "to a yaw torque, and the rig's flights do not tell what drives it",
-    "median frequency": "the world's time-varying effects have corners of 1 Hz (the turbulence's force), 0.4 Hz "
-                        "(its roll and pitch torque, the rig's band), 3 Hz (its yaw torque) and 3 Hz (the thrust "
-                        "fluctuation, which carries the world's thrust residual to about 1 Hz); the rig's force "
-                        "residual sits lower (0.3-0.5 Hz), its yaw torque residual higher (2-3 Hz). One band of the "
-                        "rotors' fluctuation does not give both: at 1-1.5 Hz the thrust residual of the Chirp, Random "
-                        "and Melon comes to the rig's band, the yaw residual falls to a third of the rig's and the "
-                        "Square's force and torque residuals to half of the rig's. The roll and pitch residuals "
-                        "differ in shape, not only in band (the section 'The roll and pitch residual's bands'): the "
-                        "rig's lies in its trajectories' band, with little below 0.1 Hz or in the rotors' band, the "
-                        "world's spreads from its slow turbulence to its thrust fluctuation. The rig's follows the "
-                        "flight (its discovery explains a small part of it by a drag moment and leaves the rest "
-                        "unnamed: no entry of the library is that effect); the world's is random in time",
+    "median frequency": "the rig's roll and pitch residual below 1 Hz is a drag moment, the torque of a drag acting "
+                        "above the centre of mass (its hypotheses' report, reports/rig/hypotheses: `drag_moment` "
+                        "explains most of it held out, and what it explains repeats between runs of one reference): "
+                        "it follows the flight's velocity, so it lies in the trajectories' band and rises with "
+                        "their pace (the Square's moves of 1 m in 1 s put it near 1 Hz). The world's drag moment "
+                        "is only its rotors' drag at their hubs, a small part of the rig's (its own hypotheses' "
+                        "report reads its size), and its roll and pitch residual is mostly its slow turbulence "
+                        "(0.4 Hz, random in time) and its thrust fluctuation (3 Hz): the section 'The roll and pitch "
+                        "residual's bands'",
     "F_z": "the rig's thrust residual follows its climb rate (the section 'The thrust residual and the climb "
-           "rate' below): a drag along the body's z axis, linear in the rotor speeds and the body velocity, of the "
-           "size of its induced drag in x and y (the rig's own discovery names it, `induced_drag`, with K_z at the "
-           "K_xy's size), which carries the rig's thrust residual down to the trajectories' band (0.3-0.5 Hz) and "
-           "makes the Square's, with its climbs and descents of 1 m, the largest; the world's K_z is Förster's "
-           "Crazyflie 2 value, a third of that, so its thrust residual is mostly its thrust fluctuation (3 Hz), "
-           "sized so that the physics row matches the paper's (reports/sim/stats.md)",
+           "rate' below): a drag along the body's z axis, linear in the rotor speeds and the body velocity, which "
+           "the world has at the rig's size (its K_z reads as the rig's there); the rest of the world's thrust "
+           "residual is its thrust fluctuation (3 Hz) and turbulence force, sized so that the physics row matches "
+           "the paper's (reports/sim/stats.md). On the rig's Random the climb drag carries more of the residual "
+           "than on the world's (their correlations in that section), so it sits lower in frequency; the rig's "
+           "Square, with its climbs and descents of 1 m within a second and its rotors swinging the most, has a "
+           "thrust residual beyond the climb drag, larger and faster than any of the world's",
     "motor lag": "the world's rotor speeds are recorded as they turn and its IMU reads through the firmware's "
                  "filters (`sim.recorder`), so its motor readings lead the accelerometer by that filter's delay "
                  "alone, as the rig's do; a telemetry delay (`sim.effects.telemetry_delay`) adds to it",
