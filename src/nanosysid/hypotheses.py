@@ -275,8 +275,7 @@ def implausible(name: str, mean: Sequence[float], half_width: Sequence[float], v
         over = [p for p, x, n in zip(c.params, values, c.nominal(vehicle))
                 if not np.isfinite(x) or abs(x) > c.bound * abs(n)]
         if over:
-            return (f"{', '.join(p.split(' [')[0] for p in over)} beyond the entry's bound "
-                    f"({c.bound:g}{' of the nominal' if name in ('inertia', 'arm') else ''})")
+            return f"{', '.join(p.split(' [')[0] for p in over)} beyond the entry's bound ({c.bound:g})"
     if c.shape is not None and not c.shape(values):
         return "its coefficients do not have the shape physics gives them together"
     return ""
