@@ -17,7 +17,7 @@ from nanosysid.report import paper, realism, rig, tables
 from nanosysid.report.stats import stats_markdown, trajectory_stats
 from nanosysid.rig.logs import LogSpec
 from nanosysid.report.world import nature_thrust_coefficient, world_markdown
-from nanosysid.sim.world import ROTOR_DRAG, ROTOR_INERTIA
+from nanosysid.sim.world import ROTOR_DRAG, ROTOR_HUB_HEIGHT, ROTOR_INERTIA
 from stages.common import plain, run_stage, vehicle_of
 
 log = logging.getLogger("nanosysid.compare")
@@ -119,6 +119,7 @@ def _world_beside(cfg: DictConfig, bench, sync) -> dict:
                              (float(sim_sync[0]["motor_lag"]), float(sync[0]["motor_lag"])))
     return {**result, **{k: {"world": world[k], "real": real[k]} for k in world},
             "rotor_drag_z": ROTOR_DRAG[2] * float(cfg.sim.effects.get("rotor_drag", 0.0)),
+            "hub_moment": ROTOR_DRAG[0] * ROTOR_HUB_HEIGHT * float(cfg.sim.effects.get("rotor_drag", 0.0)),
             "rotor_inertia": ROTOR_INERTIA * float(cfg.sim.effects.get("rotor_inertia", 0.0))}
 
 

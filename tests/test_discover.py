@@ -248,8 +248,11 @@ def test_a_hidden_effect_is_named_with_its_truth_inside_its_interval(world, entr
     # the augmented model uses, first, is the effect)
     assert f.verdict == "named" or set(f.alternatives[1:]) <= set(rivals), (f.verdict, f.alternatives)
     # named: it beat its eligible rivals held out, so it is the best of its round on most folds
-    # (an implausible candidate that fits better is no rival)
-    assert f.evidence["stability"] > 0.5, f.evidence["stability"]
+    # (an implausible candidate that fits better is no rival); ambiguous among k entries the
+    # flights cannot tell apart, it is the best on at least its share 1 / k of them
+    least = 0.5 if f.verdict == "named" else 1.0 / len(f.alternatives) - 1e-9
+    assert f.evidence["stability"] > least if f.verdict == "named" else f.evidence["stability"] >= least, \
+        f.evidence["stability"]
     # the delay is read off a grid, so its interval must reach the truth between two points
     slack = 0.0 if entry == "input_delay" else 0.1
     for (k, v), truth in zip(f.params.items(), TRUTH[entry]):

@@ -23,6 +23,8 @@ def _finding(verdict, name=None, alternatives=(), channels=("F_x",), **evidence)
 
 GOOD = {
     "alpha": 0.01, "floor": 0.25, "model": "physics+induced_drag+drag_moment+rotor_gyro",
+    "vehicle": {"mass": 0.045, "inertia": [2.4e-5, 2.4e-5, 3.2e-5], "arm": 0.035, "k_f": 3.7e-8, "k_m": 2.1e-10,
+                "gravity": 9.81},
     "findings": [
         _finding("named", "induced_drag", ci={"K_xy": (1e-6, 3e-6), "K_z": (-1e-6, 2e-6)}),
         _finding("ambiguous", None, ("drag_moment", "induced_drag_moment"), ("tau_x", "tau_y"),
@@ -41,6 +43,13 @@ def _band_pass_actuation(r):
     f["params"] = {"g_0.1s [-]": 0.5, "g_0.3s [-]": 0.0, "g_1s [-]": -0.5}
     r["findings"].append(f)
     r["model"] += "+slow_actuation"
+
+
+def _share_beyond_one(r):
+    # a lag's shares 1.5 and -1.2: its step response rises and never falls back by more than a
+    # quarter, but a share beyond 1 of the rotors' wrench is no lag
+    _band_pass_actuation(r)
+    r["findings"][-1]["params"] = {"g_0.1s [-]": 0.2, "g_0.3s [-]": 1.5, "g_1s [-]": -0.1}
 
 
 def _broken(change):
@@ -70,7 +79,8 @@ def test_a_record_that_keeps_every_rule_passes():
     (lambda r: r["findings"][2]["evidence"].update(size=0.6), "below 1"),
     (lambda r: r["findings"][2]["evidence"].update(source={"source": "the reference"}), "repeats with the reference"),
     (lambda r: r["findings"][1].update(alternatives=["drag_moment"]), "fewer than two rivals"),
-    (_band_pass_actuation, "not the shape physics gives `slow_actuation`"),
+    (_band_pass_actuation, "do not have the shape physics gives them together"),
+    (_share_beyond_one, "g_0.3s beyond the entry's bound (1)"),
 ])
 def test_each_broken_rule_is_caught(change, says):
     found = _broken(change)

@@ -230,3 +230,26 @@ def test_battery_thrust_scales_the_rotor_wrench_with_the_voltage_off_its_referen
     dv = vbat.numpy()[:, None] - 3.7  # a 1S LiPo's mid charge
     assert np.allclose(cols[:, 2:], dv * _mixer(v, om.numpy() ** 2), rtol=1e-12)
     assert np.all(cols[:, :2] == 0)
+
+
+def test_the_library_rules_judge_a_lag_a_spread_and_a_sign_by_hand():
+    vehicle, lag = Vehicle(), effects.entry("slow_actuation")
+    # a quarter of the wrench 0.1 s late: a lag; a share of -1.2 of the wrench: beyond the bound of 1
+    assert lag.implausible([0.25, 0.0, 0.0], vehicle, [0.05] * 3) == ""
+    assert lag.implausible([0.8, -1.2, 0.9], vehicle, [0.4] * 3) == "g_0.3s beyond the entry's bound (1)"
+    # shares -0.5 at 0.1 s and +1 at 1 s: the step response 1 + 0.5 e^(-t/0.1) - e^(-t) starts at
+    # 0.5, dips to 0.247 at t = ln(5)/9 = 0.179 s and rises to 1 - e^(-5) = 0.993: it falls back by
+    # 0.253, half its rise of 0.493, where a lag may fall back by a quarter at most
+    assert lag.implausible([-0.5, 0.0, 1.0], vehicle, [0.1] * 3).startswith("its coefficients")
+    assert lag.implausible([-0.5, 0.0, 1.0], vehicle, [0.1] * 3, shape=False) == ""  # within the bound
+    # rotors 30 % apart: beyond rotor_spread's bound of 25 %
+    assert "beyond" in effects.entry("rotor_spread").implausible([0.3, 0.0, 0.0], vehicle, [0.01] * 3)
+    assert effects.entry("drag_moment").implausible([-8e-4], vehicle, [1e-5]) == ""  # either sign: above or below
+    # a ground effect of c = 1e-3 m² is 21 times (27.5 mm / 4)² = 4.73e-5 m², within the bound of 25;
+    # 3e-3 m² (63 times: 13 % more thrust at 15 cm) is beyond it
+    assert effects.entry("ground_effect").implausible([1e-3], vehicle, [1e-4]) == ""
+    assert effects.entry("ground_effect").implausible([3e-3], vehicle, [1e-4]) == "c beyond the entry's bound (25)"
+    # a drag coefficient 3 intervals below zero has the wrong sign; 0.5 of one below zero is noise
+    assert effects.entry("induced_drag").implausible([-3e-6, 1e-6], vehicle, [1e-6, 1e-6]).startswith("K_xy below")
+    assert effects.entry("induced_drag").implausible([-0.5e-6, 1e-6], vehicle, [1e-6, 1e-6]) == ""
+    assert effects.entry("induced_drag").implausible([-3e-6, 1e-6], vehicle) == ""  # signs need an interval

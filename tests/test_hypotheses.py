@@ -149,20 +149,6 @@ def test_a_history_that_fits_the_controllers_answer_to_a_drag_moment_is_no_lag()
     assert res["hypotheses"]["slow_actuation"]["status"] == "excluded"
 
 
-def test_the_library_rules_judge_a_lag_and_a_spread_by_hand():
-    vehicle = Vehicle()
-    # a quarter of the wrench 0.1 s late: a lag; twice the wrench: beyond the bound of 1
-    assert H.implausible("slow_actuation", [0.25, 0.0, 0.0], [0.05] * 3, vehicle) == ""
-    assert "beyond the entry's bound (1)" in H.implausible("slow_actuation", [1.44, -2.11, 1.87], [0.4] * 3, vehicle)
-    # shares -0.5 at 0.1 s and +1 at 1 s: the step response 1 + 0.5 e^(-t/0.1) - e^(-t) starts at
-    # 0.5, dips to 0.247 at t = ln(5)/9 = 0.179 s and rises to 1 - e^(-5) = 0.993: it falls back by
-    # 0.253, half its rise of 0.493, where a lag may fall back by a quarter at most
-    assert H.implausible("slow_actuation", [-0.5, 0.0, 1.0], [0.1] * 3, vehicle).startswith("its coefficients")
-    # rotors 30 % apart: beyond rotor_spread's bound of 25 %
-    assert "beyond" in H.implausible("rotor_spread", [0.3, 0.0, 0.0], [0.01] * 3, vehicle)
-    assert H.implausible("drag_moment", [-8e-4], [1e-5], vehicle) == ""  # either sign: above or below
-
-
 def test_per_flight_interval_covers_the_truth_at_its_level():
     # 400 repeats of 6 flights, each with its own offset scattered about the truth: the 95 %
     # interval of the mean over flights must cover the truth about 95 % of the time

@@ -48,7 +48,7 @@ from nanosysid.vehicle import Vehicle
 __all__ = ["CHANNELS", "Signals", "Effect", "LIBRARY", "NOMINAL", "DELAY", "TERM_SIGNALS", "signals", "features",
            "wrench", "split_coefficients", "entry", "term_name", "apply_corrections", "refitted_vehicle", "SLOW_TIMES",
            "lag_in_k_f", "lagged_k_f",
-           "INERTIA_SHARE",
+           "INERTIA_SHARE", "GROUND_EFFECT",
            "VBAT_REF", "slow_squares"]
 
 CHANNELS = ("F_x", "F_y", "F_z", "tau_x", "tau_y", "tau_z")
@@ -139,11 +139,47 @@ class Effect:
     def nominal(self, vehicle: Vehicle) -> list[float]:
         """The values :attr:`bound` is a share of: a correction's nominal values, 1 for a
         relative coefficient."""
-        return {"inertia": list(vehicle.inertia), "arm": [vehicle.arm]}.get(self.name, [1.0] * len(self.params))
+        return {"inertia": list(vehicle.inertia), "arm": [vehicle.arm],
+                "ground_effect": [GROUND_EFFECT]}.get(self.name, [1.0] * len(self.params))
 
     def values(self, theta: Sequence[float], vehicle: Vehicle) -> list[float]:
         """The coefficients of the columns as the physical parameters :attr:`params` name."""
         return [float(t) for t in theta] if self.physical is None else self.physical(theta, vehicle)
+
+    def implausible(self, theta: Sequence[float], vehicle: Vehicle, half_width: Sequence[float] | None = None, *,
+                    shape: bool = True) -> str:
+        """Why the columns' coefficients ``theta`` cannot be this effect, by its own rules: a
+        coefficient whose sign physics fixes lies below zero by more than its interval's
+        ``half_width`` (judged only where the half-widths are given); or its values break
+        :meth:`implausible_values`. An empty string where none applies."""
+        if half_width is not None:
+            low = [p for p, s, m, h in zip(self.params, self.signs, theta, half_width) if s > 0 and m < -h]
+            if low:
+                return f"{', '.join(p.split(' [')[0] for p in low)} below zero, against its physical sign"
+        return self.implausible_values(self.values(theta, vehicle), vehicle, shape=shape)
+
+    def implausible_values(self, values: Sequence[float], vehicle: Vehicle, *, shape: bool = True) -> str:
+        """Why the physical parameters ``values`` (:attr:`params`) cannot be this effect: a value
+        beyond :attr:`bound` of its nominal (a lag's share of the rotors' wrench beyond 1 is a
+        band-pass of the rotor speeds, which fits the controller's answer to any slow torque, not
+        a lag); or, with ``shape``, values without the :attr:`shape` physics gives them together.
+        An empty string where neither applies."""
+        if self.bound is not None:
+            over = [p for p, x, n in zip(self.params, values, self.nominal(vehicle))
+                    if not np.isfinite(x) or abs(x) > self.bound * abs(n)]
+            if over:
+                return f"{', '.join(p.split(' [')[0] for p in over)} beyond the entry's bound ({self.bound:g})"
+        if shape and self.shape is not None and not self.shape(values):
+            return "its coefficients do not have the shape physics gives them together"
+        return ""
+
+
+# m²: Cheeseman and Bennett's ground effect c = (R / 4)² for the 27.5 mm rotor radius of
+# drone-models' cf21B; a multirotor's rotors near the floor add to each other's: gym-pybullet-drones
+# fits 11.4 times it for the Crazyflie 2.x. A fit beyond GROUND_EFFECT_BOUND times it is a
+# disagreement that follows the height, not the floor's
+GROUND_EFFECT = (0.0275 / 4) ** 2
+GROUND_EFFECT_BOUND = 25.0
 
 
 # the body's inertia an inertia correction may give, as shares of the nominal: a fit outside
@@ -181,15 +217,16 @@ def _drag(speed_weight: Callable[[Signals, int], Any]) -> Columns:
     return columns
 
 
-def _drag_moment(weight: Callable[[Signals], Any]) -> Columns:
+def _drag_moment(weight: Callable[[Signals], Any], per_axis: bool = False) -> Columns:
     """Torque of a horizontal drag ``-D v`` acting a height ``h`` above the centre of mass:
-    ``(0, 0, h) x F = h D (v_y, -v_x, 0)``, one column, coefficient ``h D``."""
+    ``(0, 0, h) x F = h D (v_y, -v_x, 0)``, one column, coefficient ``h D``; ``per_axis``: one
+    column per roll and pitch axis, ``(h D)_x`` and ``(h D)_y``."""
 
     def columns(sg: Signals, vehicle: Vehicle) -> list[list[Any]]:
         k = weight(sg)
-        rows = _zero_rows(1)
+        rows = _zero_rows(2 if per_axis else 1)
         rows[3][0] = sg.v[1] if k is None else k * sg.v[1]
-        rows[4][0] = -sg.v[0] if k is None else -(k * sg.v[0])
+        rows[4][1 if per_axis else 0] = -sg.v[0] if k is None else -(k * sg.v[0])
         return rows
 
     return columns
@@ -417,14 +454,16 @@ LIBRARY: dict[str, Effect] = {e.name: e for e in (
            excited_by="climbs and descents at several throttles"),
     Effect("ground_effect", "thrust rising near the floor (Cheeseman and Bennett): F_z = c T / z², "
            "c = (rotor radius / 4)²", ("c [m²]",), _ground_effect, ("p", "v"), (1,),
-           excited_by="hover at several heights below a few rotor diameters"),
+           excited_by="hover at several heights below a few rotor diameters", bound=GROUND_EFFECT_BOUND),
     Effect("drag_moment", "horizontal drag acting above or below the centre of mass: "
            "tau = h D (v_y, -v_x, 0) (the airframe's centre of pressure)", ("hD [kg m/s]",),
            _drag_moment(lambda sg: None), ("R", "w"), (0,),
            excited_by="fast straight passes at several throttles"),
-    Effect("induced_drag_moment", "rotor drag acting at the rotor plane, off the centre of mass: "
-           "tau = e (Σ Ω_i) (v_y, -v_x, 0) (Förster's drag at the hub height)", ("e [kg m/rad]",),
-           _drag_moment(lambda sg: _sum(sg.om)), ("R", "w"), (0,),
+    Effect("induced_drag_moment", "rotor drag and blade flapping acting at the rotor plane, off the centre of mass: "
+           "tau = (Σ Ω_i) (e_x v_y, -e_y v_x, 0) (Förster's drag at the hub height; the discs flapping back from "
+           "their air speed tilt the thrust, Mahony, Kumar and Corke 2012; per axis, as the airframe, the battery "
+           "and the decks are longer than wide)", ("e_x [kg m/rad]", "e_y [kg m/rad]"),
+           _drag_moment(lambda sg: _sum(sg.om), per_axis=True), ("R", "w"), (0, 0),
            excited_by="fast straight passes at several throttles"),
     Effect("rate_damping", "aerodynamic damping of the body rates: tau = -diag(b_xy, b_xy, b_z) ω",
            ("b_xy [N m s]", "b_z [N m s]"), _rate_damping(lambda sg: None), ("R", "w"), (1, 1),

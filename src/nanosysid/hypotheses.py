@@ -49,7 +49,7 @@ from nanosysid.identify import body_torque
 from nanosysid.vehicle import Vehicle
 
 __all__ = ["HYPOTHESES", "HOLD", "AIR", "CUTOFF", "MIN_SHARE", "TIE", "REPEAT", "TorqueData", "torque_data",
-           "MIN_GAIN", "lowpass", "fit", "per_flight", "held_out", "hover_check", "implausible",
+           "MIN_GAIN", "lowpass", "fit", "per_flight", "held_out", "hover_check",
            "reference_correlation", "hold_offset",
            "tested_apart", "verdict"]
 
@@ -258,35 +258,12 @@ def hold_offset(hold: Flight, vehicle: Vehicle, *, window: int = 15, order: int 
     return {"offset": theta.tolist(), "half_width": half.tolist(), "seconds": float(hold.t[keep[-1]] - hold.t[keep[0]])}
 
 
-def implausible(name: str, mean: Sequence[float], half_width: Sequence[float], vehicle: Vehicle) -> str:
-    """Why the library entry ``name``'s coefficients ``mean`` (with their 95 % half-widths from the
-    flights) cannot be the effect, by the entry's own rules, those discovery's selection applies
-    (:mod:`nanosysid.effects`): a coefficient whose sign physics fixes lies below zero by more
-    than its interval; a value beyond the entry's bound (a lag's share of the rotors' wrench
-    beyond 1: a band-pass of the rotor speeds, which fits the controller's answer to any slow
-    torque, not a lag); or coefficients without the shape physics gives them together. An empty
-    string where none applies."""
-    c = effects.entry(name)
-    low = [p for p, s, m, h in zip(c.params, c.signs, mean, half_width) if s > 0 and m < -h]
-    if low:
-        return f"{', '.join(p.split(' [')[0] for p in low)} below zero, against its physical sign"
-    values = c.values(mean, vehicle)
-    if c.bound is not None:
-        over = [p for p, x, n in zip(c.params, values, c.nominal(vehicle))
-                if not np.isfinite(x) or abs(x) > c.bound * abs(n)]
-        if over:
-            return f"{', '.join(p.split(' [')[0] for p in over)} beyond the entry's bound ({c.bound:g})"
-    if c.shape is not None and not c.shape(values):
-        return "its coefficients do not have the shape physics gives them together"
-    return ""
-
-
 def _select(data: Sequence[TorqueData], columns: Mapping[str, int],
             repeats: Mapping[str, float | None], vehicle: Vehicle) -> tuple[list[dict[str, Any]], list[str]]:
     """Forward selection over held-out shares: each round adds the candidate whose joint held-out
     share gains most, if the gain reaches :data:`MIN_SHARE` (first round) or :data:`MIN_GAIN`
     (later), one of its coefficients' intervals from the flights excludes zero, its coefficients
-    are physically possible (:func:`implausible`), and what it explains repeats between runs of
+    are physically possible (:meth:`nanosysid.effects.Effect.implausible`), and what it explains repeats between runs of
     one reference (``repeats``: its prediction's correlation with its partner runs', at least
     :data:`REPEAT`; None where no run has a partner). A function of the state and the inputs
     along one reference repeats with it; a fit that follows the controller's answer to a
@@ -310,7 +287,7 @@ def _select(data: Sequence[TorqueData], columns: Mapping[str, int],
             rep = repeats.get(c)
             gains[c] = {"gain": ho["share"] - share, "share": ho["share"], "significant": sig,
                         "repeats": rep is None or rep >= REPEAT,
-                        "implausible": implausible(c, pf["mean"][own], pf["half_width"][own], vehicle)}
+                        "implausible": effects.entry(c).implausible(pf["mean"][own], vehicle, pf["half_width"][own])}
         ok = {c: g for c, g in gains.items() if g["significant"] and g["repeats"] and not g["implausible"]
               and g["gain"] >= (MIN_GAIN if named else MIN_SHARE)}
         if not ok:

@@ -17,6 +17,7 @@ from nanosysid.discover.sources import REPEATS
 from nanosysid.discover.stability import HOLD
 from nanosysid.discover.verdicts import STATELESS_FLOOR
 from nanosysid.effects import DELAY, LIBRARY
+from nanosysid.vehicle import Vehicle
 
 __all__ = ["violations"]
 
@@ -40,8 +41,9 @@ def violations(record: Mapping[str, Any]) -> list[str]:
       least ``floor`` noise floors), and an ambiguous one has at least two rivals;
     - a named finding has a coefficient whose 95 % interval excludes zero; an ``undetermined``
       one has none (the delay, whose interval starts at zero by construction, aside);
-    - an entry the model applies whose coefficients physics gives a shape (a slow actuation's
-      is a lag: :attr:`~nanosysid.effects.Effect.shape`) has it;
+    - an entry the model applies has coefficients physics allows it: within its bound, of the
+      shape physics gives them together (a slow actuation's is a lag:
+      :meth:`~nanosysid.effects.Effect.implausible_values`);
     - a residual called not a function of the state is at least the noise floor in size and
       does not mostly repeat with the reference;
     - the augmented model's name lists exactly the named, ambiguous and undetermined findings'
@@ -49,6 +51,7 @@ def violations(record: Mapping[str, Any]) -> list[str]:
     """
     out: list[str] = []
     alpha, floor = float(record["alpha"]), float(record["floor"])
+    vehicle = Vehicle(**{k: tuple(v) if isinstance(v, list) else v for k, v in record["vehicle"].items()})
     parts = record["model"].split("+")[1:]
     model = set(parts) - {"terms"}
     for i, f in enumerate(record["findings"]):
@@ -70,9 +73,10 @@ def violations(record: Mapping[str, Any]) -> list[str]:
                 out.append(f"{what}: size {ev['size']:.3g} noise floors, below the floor {floor:g}")
             if entry not in model:
                 out.append(f"{what}: its entry is not in the model {record['model']}")
-            shape = LIBRARY[entry].shape if entry in LIBRARY else None
-            if shape is not None and f["params"] and not shape(list(f["params"].values())):
-                out.append(f"{what}: its coefficients have not the shape physics gives `{entry}`")
+            why = (LIBRARY[entry].implausible_values(list(f["params"].values()), vehicle)
+                   if entry in LIBRARY and f["params"] else "")
+            if why:
+                out.append(f"{what}: not physically possible as `{entry}`: {why}")
         if v == "ambiguous" and len(f["alternatives"]) < 2:
             out.append(f"{what}: ambiguous with fewer than two rivals")
         if v == "named" and entry != DELAY.name and _holds_zero(ev.get("ci") or {}):

@@ -123,11 +123,12 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
     selection's own test (one-sided signed-rank over blocks at ``alpha``, a size of at least
     ``floor``): else it stands in for a function of the state (a rotor's inertia answers the
     rotor speeds' rates as a short lag does). Its coefficients as the model holds them (every
-    entry chosen and the delay beside it, k_F and k_M as given) must have the shape physics
-    gives the entry (:attr:`~nanosysid.effects.Effect.shape`: a slow actuation's step response
-    never falls back by a good part of its rise, where the controller's answer to a
-    disturbance, fitted beside a delay, takes a band-pass's). Each pick's checks are kept on
-    it."""
+    entry chosen and the delay beside it, k_F and k_M as given) must stay within the entry's
+    bound and have the shape physics gives it (:meth:`~nanosysid.effects.Effect.implausible`:
+    the selection judged the folds' mean, which a share beyond 1 in the final fit need not
+    follow; a slow actuation's step response never falls back by a good part of its rise,
+    where the controller's answer to a disturbance, fitted beside a delay, takes a
+    band-pass's). Each pick's checks are kept on it."""
     kept, dropped = [], list(selection.dropped)
     state = [n for n in COLUMN_ENTRIES[1:] if not entry(n).needs]
     g = search.grams(selection.delay)
@@ -161,37 +162,28 @@ def check_reference(search: Search, selection: Selection, pairs: Pairs, *, alpha
             size = float(np.sqrt(max(hodges_lehmann(gains), 0.0)))
             pk.history["beyond_state"] = {"z": z, "p": p, "size": size, "holds": bool(p <= alpha and size >= floor)}
             holds = holds and pk.history["beyond_state"]["holds"]
-        c = LIBRARY[pk.name]
-        if c.shape is not None:
-            # as the model holds it: beside every entry chosen and the delay, k_F and k_M as given
-            if model is None:
-                model = split_coefficients([NOMINAL.name, *selection.chosen],
-                                           search.fit_grams(selection.delay).solve(search.cols(selection.chosen)))
-            pk.history["shape"] = bool(c.shape(c.values(model[pk.name], search.vehicle)))
-            holds = holds and pk.history["shape"]
+        # as the model holds it: beside every entry chosen and the delay, k_F and k_M as given
+        if model is None:
+            model = split_coefficients([NOMINAL.name, *selection.chosen],
+                                       search.fit_grams(selection.delay).solve(search.cols(selection.chosen)))
+        pk.history["implausible"] = LIBRARY[pk.name].implausible(model[pk.name], search.vehicle)
+        holds = holds and not pk.history["implausible"]
         (kept if holds else dropped).append(pk)
     chosen = [pk.name for pk in kept if pk.name != DELAY.name]
     return Selection(selection.rounds, kept, chosen, selection.delay, dropped)
 
 
 def _signs_ok(name: str, thetas: np.ndarray, search: Search, chosen: list[str]) -> bool:
-    """No coefficient with a physical sign is negative by more than two standard errors, and a
-    correction stays within its bound of the nominal value. The coefficients' joint shape is
-    judged once the selection is done (:func:`check_reference`): before the delay is chosen, a
-    lag's shares fit part of it and need not have a lag's shape."""
+    """The folds' mean coefficients obey the entry's rules (:meth:`~nanosysid.effects.Effect.implausible`,
+    a sign's interval two standard errors). The coefficients' joint shape is judged once the
+    selection is done (:func:`check_reference`): before the delay is chosen, a lag's shares fit
+    part of it and need not have a lag's shape."""
     c = LIBRARY[name]
     if c is DELAY:
         return True
     k = len(search.cols(chosen))  # the candidate's columns come last
     th = thetas[:, k:]
-    mean, se = th.mean(axis=0), jackknife(th)
-    if any(s > 0 and m < -2 * e for s, m, e in zip(c.signs, mean, se)):
-        return False
-    if c.bound is not None:
-        values = c.values(mean, search.vehicle)
-        if any(not np.isfinite(x) or abs(x) > c.bound * abs(n) for x, n in zip(values, c.nominal(search.vehicle))):
-            return False
-    return True
+    return not c.implausible(th.mean(axis=0), search.vehicle, 2 * jackknife(th), shape=False)
 
 
 def _best_delay(search: Search, chosen: list[str], delays: Sequence[float]) -> float:

@@ -355,7 +355,11 @@ def write_report(result: DiscoveryResult, out: Path, *, nominal: str = "as given
             L += figure_lines(label, fig_of[label], scatter[label]["channel"], shown)
     for d in result.dropped:
         h = d["history"]
-        if not h.get("holds", True):
+        if h.get("implausible"):
+            L += [f"**`{d['entry']}` chosen, then dropped**: not physically possible as the model would hold it "
+                  f"(fitted on every flight at once, beside every entry chosen): {h['implausible']}. The selection "
+                  "had judged the mean of its folds' fits.", ""]
+        elif not h.get("holds", True):
             iv = (f"With the partner run's columns as the instrument, the slope of the residual on its contribution is "
                   f"{h['slope']:.2f} (95 % interval {h['ci'][0]:.2f} … {h['ci'][1]:.2f}; 1 for a real effect)")
             if h.get("whole") is False and h["ci"][1] >= 0.5 and h["slope"] <= AGREE:
@@ -657,7 +661,9 @@ def _observations(result: DiscoveryResult, references: dict[str, Any], figs: Pat
                  + (f" ({_reference_text(h)})" if h.get("checked") else "") + ".")
     elif dropped is not None:
         h = dropped["history"]
-        why = (f"only part of its fit repeats with the reference (short of the {HISTORY_REPEAT:g} a lag reaches): the "
+        why = (f"not physically possible as the model would hold it: {h['implausible']}"
+               if h.get("implausible") else
+               f"only part of its fit repeats with the reference (short of the {HISTORY_REPEAT:g} a lag reaches): the "
                "recorded rotor speeds' noise, their residual delay or the controller's answer to a disturbance"
                if h.get("whole") is False else
                "its instrumental and least-squares estimates disagree: the controller's answer to a disturbance "
