@@ -392,25 +392,6 @@ def test_the_world_comparison_reads_the_climb_drag_in_the_thrust_residual():
     assert two["K_z, 95 % half-width over the runs [kg/rad]"] == pytest.approx(12.706 * 1.0e-6, rel=0.01)
 
 
-def test_the_climb_drags_interval_over_the_runs_covers_the_truth_about_95_percent_of_the_time():
-    # 300 sessions of four bobbing hovers each (as above, K_z 2.8e-6 kg/rad), each run with its own
-    # accelerometer noise (white, 0.2 m/s²) and a slow thrust disturbance of random phase; the 95 %
-    # interval over a session's runs covers the true K_z in 95 % of the sessions (binomial std of
-    # the share over 300: 1.3 %)
-    from nanosysid.report import realism
-
-    def slow(t, rng):
-        return 2e-3 * np.sin(2 * np.pi * 0.3 * t + rng.uniform(0, 2 * np.pi))
-
-    rng = np.random.default_rng(7)
-    covered = 0
-    for _ in range(300):
-        vehicle, flights, _ = _bobbing_hovers((2.8e-6,) * 4, "chirp", slow, 0.2, rng, samples=2000)
-        est = realism.climb_drag(flights, vehicle)["chirp"]
-        covered += abs(est["K_z [kg/rad]"] - 2.8e-6) <= est["K_z, 95 % half-width over the runs [kg/rad]"]
-    assert 0.92 <= covered / 300 <= 0.98
-
-
 def _flapping_hovers(moments, name, slow=None, noise=0.0, rng=None, samples=3000):
     """Level hovers drifting along body x at 0.3 Hz and body y at 0.4 Hz, rotors steady at b (no
     nominal torque), whose roll and pitch rates answer a moment ``(E_x S_y, -E_y S_x)``, ``S =
@@ -461,22 +442,41 @@ def test_the_world_comparison_reads_the_drag_moment_in_the_slow_roll_and_pitch_r
     assert two["E_y, 95 % half-width over the runs [kg m/rad]"] == pytest.approx(0.0, abs=1e-10)
 
 
-def test_the_drag_moments_interval_over_the_runs_covers_the_truth_about_95_percent_of_the_time():
-    # 300 sessions of four flapping hovers each (as above, E 0.9e-7 and 1.3e-7 kg m/rad), each run
-    # with its own gyro noise (white, 0.05 rad/s) and a slow torque of random phase; the 95 %
-    # interval over a session's runs covers the true E_x in 95 % of the sessions (binomial std of
-    # the share over 300: 1.3 %)
-    from nanosysid.report import realism
+def _climb_session(rng):
+    # four bobbing hovers (K_z 2.8e-6 kg/rad), each with its own accelerometer noise (white, 0.2
+    # m/s²) and a slow thrust disturbance of random phase
+    def slow(t, rng):
+        return 2e-3 * np.sin(2 * np.pi * 0.3 * t + rng.uniform(0, 2 * np.pi))
 
+    vehicle, flights, _ = _bobbing_hovers((2.8e-6,) * 4, "chirp", slow, 0.2, rng, samples=2000)
+    return vehicle, flights
+
+
+def _flapping_session(rng):
+    # four flapping hovers (E 0.9e-7 and 1.3e-7 kg m/rad), each with its own gyro noise (white,
+    # 0.05 rad/s) and a slow torque of random phase
     def slow(t, rng):
         return 5e-5 * np.sin(2 * np.pi * 0.25 * t + rng.uniform(0, 2 * np.pi))
 
-    rng = np.random.default_rng(11)
+    return _flapping_hovers(((0.9e-7, 1.3e-7),) * 4, "chirp", slow, 0.05, rng, samples=2000)
+
+
+@pytest.mark.parametrize("session, analysis, coefficient, truth, seed", [
+    (_climb_session, "climb_drag", "K_z [kg/rad]", 2.8e-6, 7),
+    (_flapping_session, "drag_moment", "E_x [kg m/rad]", 0.9e-7, 11)])
+def test_a_regressions_interval_over_the_runs_covers_the_truth_about_95_percent_of_the_time(
+        session, analysis, coefficient, truth, seed):
+    # 300 sessions of four runs each; the 95 % interval over a session's runs covers the truth in
+    # 95 % of the sessions (binomial std of the share over 300: 1.3 %)
+    from nanosysid.report import realism
+
+    name, unit = coefficient.split(" [")
+    rng = np.random.default_rng(seed)
     covered = 0
     for _ in range(300):
-        vehicle, flights = _flapping_hovers(((0.9e-7, 1.3e-7),) * 4, "chirp", slow, 0.05, rng, samples=2000)
-        est = realism.drag_moment(flights, vehicle)["chirp"]
-        covered += abs(est["E_x [kg m/rad]"] - 0.9e-7) <= est["E_x, 95 % half-width over the runs [kg m/rad]"]
+        vehicle, flights = session(rng)
+        est = getattr(realism, analysis)(flights, vehicle)["chirp"]
+        covered += abs(est[coefficient] - truth) <= est[f"{name}, 95 % half-width over the runs [{unit}"]
     assert 0.92 <= covered / 300 <= 0.98
 
 
